@@ -1,0 +1,180 @@
+"""Arrow schemas of every table in the lake: the data contract between stages.
+
+Each table lives under ``<data>/lake/<name>/`` as hive-partitioned Parquet
+(partition columns are listed in ``PARTITIONS``) and is exposed as a DuckDB
+view of the same name by ``touch2robot.catalog``.
+"""
+
+from __future__ import annotations
+
+import pyarrow as pa
+
+# The shared semantic contact space (paper convention): robot fingertips <-> human
+# T1..T4 (thumb, index, middle, ring), robot palm pads <-> P1..P4. The human T5
+# (little finger) has no robot counterpart and never enters a comparison.
+ROBOT_REGIONS: tuple[str, ...] = ("T1", "T2", "T3", "T4", "P1", "P2", "P3", "P4")
+HUMAN_REGIONS: tuple[str, ...] = ("T1", "T2", "T3", "T4", "T5", "P1", "P2", "P3", "P4")
+FINGERTIP_REGIONS: tuple[str, ...] = ("T1", "T2", "T3", "T4", "T5")
+PALM_REGIONS: tuple[str, ...] = ("P1", "P2", "P3", "P4")
+
+# Contact sources appended to the `contacts` table by the stages.
+CONTACT_SOURCES: tuple[str, ...] = ("human", "sim", "real", "reconstructed")
+
+TASKS: tuple[str, ...] = ("pick", "rotate", "wipe", "drawer")
+
+RECORDING_KINDS: tuple[str, ...] = ("glove_session", "robot_replay", "robot_calibration")
+
+recordings = pa.schema(
+    [
+        pa.field("recording_id", pa.string(), nullable=False),  # sha256 of the file content (first 16 hex)
+        pa.field("path", pa.string(), nullable=False),
+        pa.field("file_name", pa.string(), nullable=False),
+        pa.field("size_bytes", pa.int64(), nullable=False),
+        pa.field("kind", pa.string()),
+        pa.field("task", pa.string()),
+        pa.field("subject", pa.string()),
+        pa.field("method", pa.string()),
+        pa.field("reference_recording", pa.string()),  # replay: file name of the glove session it replays
+        pa.field("calibration_recording", pa.string()),  # replay: file name of its TwinTac calibration
+        pa.field("start_time_s", pa.float64()),
+        pa.field("end_time_s", pa.float64()),
+        pa.field("duration_s", pa.float64()),
+        pa.field("message_counts", pa.string()),  # JSON {topic: count}
+        pa.field("status", pa.string(), nullable=False),  # "ingested" | "quarantined"
+        pa.field("reason", pa.string()),  # why quarantined (empty when ingested)
+        pa.field("ingested_at", pa.timestamp("us", tz="UTC")),
+    ]
+)
+
+# --- Streams of glove sessions -------------------------------------------------
+taxels = pa.schema(
+    [
+        pa.field("recording_id", pa.string(), nullable=False),
+        pa.field("t", pa.float64(), nullable=False),  # seconds since the recording's first message
+        pa.field("values", pa.list_(pa.float32(), 256), nullable=False),
+    ]
+)
+
+hand_joints = pa.schema(
+    [
+        pa.field("recording_id", pa.string(), nullable=False),
+        pa.field("t", pa.float64(), nullable=False),
+        pa.field("position", pa.list_(pa.float32(), 20), nullable=False),
+    ]
+)
+
+hand_keypoints = pa.schema(
+    [
+        pa.field("recording_id", pa.string(), nullable=False),
+        pa.field("t", pa.float64(), nullable=False),
+        # 21 keypoints x (x, y, z) in the world frame, row-major (wrist, then 4 per finger thumb..little)
+        pa.field("xyz", pa.list_(pa.float32(), 63), nullable=False),
+    ]
+)
+
+POSE_FIELDS = [
+    pa.field("recording_id", pa.string(), nullable=False),
+    pa.field("t", pa.float64(), nullable=False),
+    pa.field("px", pa.float64()),
+    pa.field("py", pa.float64()),
+    pa.field("pz", pa.float64()),
+    pa.field("qw", pa.float64()),
+    pa.field("qx", pa.float64()),
+    pa.field("qy", pa.float64()),
+    pa.field("qz", pa.float64()),
+]
+wrist_pose = pa.schema(POSE_FIELDS)
+object_pose = pa.schema(POSE_FIELDS)
+
+# --- Streams of robot replays and calibrations --------------------------------
+robot_joint_states = pa.schema(
+    [
+        pa.field("recording_id", pa.string(), nullable=False),
+        pa.field("t", pa.float64(), nullable=False),
+        pa.field("position", pa.list_(pa.float32(), 16), nullable=False),
+        pa.field("velocity", pa.list_(pa.float32(), 16), nullable=False),
+        pa.field("effort", pa.list_(pa.float32(), 16), nullable=False),
+    ]
+)
+
+robot_joint_targets = pa.schema(
+    [
+        pa.field("recording_id", pa.string(), nullable=False),
+        pa.field("t", pa.float64(), nullable=False),
+        pa.field("position", pa.list_(pa.float32(), 16), nullable=False),
+    ]
+)
+
+twintac = pa.schema(
+    [
+        pa.field("recording_id", pa.string(), nullable=False),
+        pa.field("t", pa.float64(), nullable=False),
+        pa.field("values", pa.list_(pa.float32(), 16), nullable=False),
+    ]
+)
+
+fsr = pa.schema(
+    [
+        pa.field("recording_id", pa.string(), nullable=False),
+        pa.field("t", pa.float64(), nullable=False),
+        pa.field("values", pa.list_(pa.float32(), 4), nullable=False),
+    ]
+)
+
+time_map = pa.schema(
+    [
+        pa.field("recording_id", pa.string(), nullable=False),  # the replay recording
+        pa.field("t", pa.float64(), nullable=False),  # replay time (s since replay start)
+        pa.field("t_ref", pa.float64(), nullable=False),  # reference-trajectory time (s since reference start)
+    ]
+)
+
+# --- Derived tables ------------------------------------------------------------
+contacts = pa.schema(
+    [
+        pa.field("source", pa.string(), nullable=False),  # human | sim | real | reconstructed
+        pa.field("method", pa.string(), nullable=False),  # "human" for the glove; else the method name
+        pa.field("task", pa.string(), nullable=False),
+        pa.field("subject", pa.string(), nullable=False),
+        pa.field("sequence_id", pa.string(), nullable=False),  # recording id or rollout id
+        pa.field("reference_id", pa.string(), nullable=False),  # glove recording whose preference is the reference
+        pa.field("t", pa.float64(), nullable=False),  # seconds in the sequence's own clock
+        pa.field("t_ref", pa.float64(), nullable=False),  # seconds on the reference trajectory's clock
+        pa.field("region", pa.string(), nullable=False),  # one of ROBOT_REGIONS
+        pa.field("contact", pa.bool_(), nullable=False),
+        pa.field("value", pa.float32()),  # regional response / force behind the decision (NaN if none)
+    ]
+)
+
+thresholds = pa.schema(
+    [
+        pa.field("recording_id", pa.string(), nullable=False),
+        pa.field("sensor", pa.string(), nullable=False),  # glove | twintac | fsr
+        pa.field("group", pa.string(), nullable=False),  # fingertip | palm | channel_<i>
+        pa.field("threshold", pa.float64(), nullable=False),
+        pa.field("baseline", pa.float64()),
+        pa.field("noise", pa.float64()),
+        pa.field("method", pa.string(), nullable=False),  # how it was derived
+    ]
+)
+
+SCHEMAS: dict[str, pa.Schema] = {
+    "recordings": recordings,
+    "taxels": taxels,
+    "hand_joints": hand_joints,
+    "hand_keypoints": hand_keypoints,
+    "wrist_pose": wrist_pose,
+    "object_pose": object_pose,
+    "robot_joint_states": robot_joint_states,
+    "robot_joint_targets": robot_joint_targets,
+    "twintac": twintac,
+    "fsr": fsr,
+    "time_map": time_map,
+    "contacts": contacts,
+    "thresholds": thresholds,
+}
+
+# Hive partition columns per table (directory levels under lake/<table>/).
+PARTITIONS: dict[str, tuple[str, ...]] = {
+    "contacts": ("source", "task"),
+}

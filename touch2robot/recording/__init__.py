@@ -1,0 +1,1 @@
+"""Recordings on disk: CDR message codec and MCAP writer (the reader side is ingestion)."""

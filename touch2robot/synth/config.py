@@ -1,0 +1,23 @@
+"""Configuration of the simulated demonstrator."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from schemas.tables import TASKS
+
+
+class SynthConfig(BaseModel):
+    """How many recordings the demonstrator writes. Defaults are the ``paper`` profile:
+    3 subjects x 10 demonstrations = 30 glove sessions per task."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    seed: int = 0
+    tasks: tuple[str, ...] = TASKS
+    subjects: int = Field(3, ge=1)
+    demos_per_subject: int = Field(10, ge=1)
+    replay_methods: tuple[str, ...] = ("touch2robot", "dex-retargeting")
+    replays_per_task: int = Field(2, ge=0, description="glove sessions per task replayed on the robot, per method")
+    pace: float = Field(1.0, gt=0, description="time stretch of every scripted motion (longer recordings when > 1)")
+    calibration_s: float = Field(5.0, gt=0)

@@ -1,0 +1,252 @@
+"""The simulated demonstrator: writes glove sessions, robot replays and TwinTac
+calibrations as MCAP files exactly as the rig would, plus ground truth kept apart
+(``<data>/groundtruth``, read only by tests)."""
+
+from __future__ import annotations
+
+import os
+import zlib
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from schemas.glove import GLOVE_JOINT_NAMES, TAXEL_REGION
+from schemas.messages import LEAP_JOINT_NAMES
+from schemas.tables import HUMAN_REGIONS, ROBOT_REGIONS, TASKS
+from touch2robot import geometry, scenes
+from touch2robot.recording import cdr
+from touch2robot.recording.writer import RecordingWriter
+from touch2robot.synth.config import SynthConfig
+from touch2robot.synth.demos import SCRIPTS
+from touch2robot.synth.hand import HumanHand
+from touch2robot.synth.motion import Scene, Trajectory, taxel_forces_along
+from touch2robot.synth.sensors import TwinTac, fsr_readings, glove_readings
+
+EPOCH_NS = 1_767_225_600 * 10**9  # 2026-01-01T00:00:00Z: recordings start from here
+CONTACT_N = 0.5
+_REGION_IDX = {r: np.flatnonzero(np.asarray(TAXEL_REGION) == r) for r in HUMAN_REGIONS}
+
+
+@dataclass(frozen=True)
+class RecordingJob:
+    """One file to write. Glove jobs stand alone; replay and calibration jobs name the
+    glove demonstration they belong to and regenerate it deterministically."""
+
+    kind: str
+    task: str
+    subject: int
+    demo: int
+    method: str = ""
+
+    @property
+    def stem(self) -> str:
+        base = f"{self.task}_s{self.subject:02d}_d{self.demo:02d}"
+        return {"glove_session": f"{base}_glove", "robot_replay": f"{base}_{self.method}_replay", "robot_calibration": f"{base}_{self.method}_calib"}[self.kind]
+
+    @property
+    def file_name(self) -> str:
+        return f"{self.stem}.mcap"
+
+
+def plan(config: SynthConfig) -> list[RecordingJob]:
+    """Every recording the configuration asks for, in a stable order."""
+    jobs: list[RecordingJob] = []
+    for task in config.tasks:
+        for subject in range(1, config.subjects + 1):
+            for demo in range(1, config.demos_per_subject + 1):
+                jobs.append(RecordingJob("glove_session", task, subject, demo))
+        glove = [j for j in jobs if j.task == task]
+        for j in glove[: config.replays_per_task]:
+            for method in config.replay_methods:
+                jobs.append(RecordingJob("robot_calibration", task, j.subject, j.demo, method))
+                jobs.append(RecordingJob("robot_replay", task, j.subject, j.demo, method))
+    return jobs
+
+
+def _rng(config: SynthConfig, job: RecordingJob, stream: int) -> np.random.Generator:
+    return np.random.default_rng([config.seed, TASKS.index(job.task), job.subject, job.demo, stream])
+
+
+def _demonstration(config: SynthConfig, job: RecordingJob) -> tuple[HumanHand, Trajectory, Scene]:
+    spec = scenes.get(job.task)
+    subject_rng = np.random.default_rng([config.seed, 1000 + job.subject])
+    hand = HumanHand(scale=subject_rng.uniform(0.92, 1.08))
+    rng = _rng(config, job, 0)
+    traj = SCRIPTS[job.task](spec, hand, rng, config.pace * rng.uniform(0.9, 1.1))
+    return hand, traj, Scene.from_task(spec)
+
+
+def _start_offset_s(job: RecordingJob) -> int:
+    """A stable, distinct start second per recording (str hash() is salted per process)."""
+    return zlib.crc32(job.stem.encode()) % 10**6
+
+
+def _stamps(duration: float, rate: float, rng: np.random.Generator) -> np.ndarray:
+    """Sensor times (s): a stream starts a few ms late and ticks with a little jitter."""
+    t = rng.uniform(0.0, 0.01) + np.arange(0.0, duration, 1.0 / rate)
+    return t + rng.uniform(0.0, 0.2 / rate, t.size)
+
+
+def _region_forces(taxel_force: np.ndarray) -> np.ndarray:
+    return np.stack([taxel_force[:, _REGION_IDX[r]].sum(axis=1) for r in HUMAN_REGIONS], axis=1)
+
+
+def _write_groundtruth(path: Path, t: np.ndarray, regions: tuple[str, ...], force: np.ndarray, extra: dict | None = None) -> None:
+    n = len(t)
+    cols = {
+        "t": np.repeat(t, len(regions)),
+        "region": np.tile(np.asarray(regions), n),
+        "force": force.reshape(-1).astype(np.float32),
+        "contact": force.reshape(-1) > CONTACT_N,
+    }
+    table = pa.table(cols)
+    if extra:
+        table = table.replace_schema_metadata({k: str(v) for k, v in extra.items()})
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    pq.write_table(table, tmp)
+    os.replace(tmp, path)
+
+
+def write_recording(config: SynthConfig, job: RecordingJob, recordings: Path, groundtruth: Path) -> Path:
+    """Write one recording (and its ground truth); returns the MCAP path."""
+    writer = {"glove_session": _write_glove, "robot_replay": _write_replay, "robot_calibration": _write_calibration}[job.kind]
+    path = recordings / job.file_name
+    writer(config, job, path, groundtruth / f"{job.stem}.parquet")
+    return path
+
+
+def _write_glove(config: SynthConfig, job: RecordingJob, path: Path, gt_path: Path) -> None:
+    hand, traj, scene = _demonstration(config, job)
+    rng = _rng(config, job, 1)
+    duration = float(traj.t[-1])
+    t0_ns = EPOCH_NS + _start_offset_s(job) * 10**9
+    t_tax = _stamps(duration, 100.0, rng)
+    force = taxel_forces_along(hand, scene, traj.sample(t_tax))
+    raw = glove_readings(force, t_tax, rng)
+    t_hand = _stamps(duration, 60.0, rng)
+    hand_traj = traj.sample(t_hand)
+    joints = hand_traj.joints + rng.normal(0.0, 0.01, hand_traj.joints.shape)
+    wrist_pos = hand_traj.wrist_pos + rng.normal(0.0, 0.001, hand_traj.wrist_pos.shape)
+    keypoints = geometry.transform_points(hand.forward(joints).keypoints, wrist_pos, hand_traj.wrist_quat)
+    t_obj = _stamps(duration, 100.0, rng)
+    obj = traj.sample(t_obj)
+    obj_pos = obj.object_pos + rng.normal(0.0, 0.0005, obj.object_pos.shape)
+
+    def ns(t: float) -> int:
+        return t0_ns + int(round(t * 1e9))
+
+    metadata = {"task": job.task, "subject": f"s{job.subject:02d}", "demo": str(job.demo), "rig": "simulated-demonstrator"}
+    with RecordingWriter(path, "glove_session", metadata) as w:
+        # interleave streams in time order, as a live recorder would
+        events = sorted(
+            [(t, 0, i) for i, t in enumerate(t_tax)] + [(t, 1, i) for i, t in enumerate(t_hand)] + [(t, 2, i) for i, t in enumerate(t_obj)]
+        )
+        for t, stream, i in events:
+            stamp = ns(t)
+            if stream == 0:
+                w.write("/glove/taxels", stamp, cdr.encode_tactile(stamp, "glove_right", raw[i]))
+            elif stream == 1:
+                w.write("/glove/hand_joints", stamp, cdr.encode_joint_state(stamp, "glove_right", GLOVE_JOINT_NAMES, joints[i]))
+                w.write("/glove/keypoints", stamp, cdr.encode_pose_array(stamp, "world", keypoints[i]))
+                w.write("/glove/wrist_pose", stamp, cdr.encode_pose_stamped(stamp, "world", wrist_pos[i], hand_traj.wrist_quat[i]))
+            else:
+                w.write("/object/pose", stamp, cdr.encode_pose_stamped(stamp, scenes.get(job.task).object.name, obj_pos[i], obj.object_quat[i]))
+    start = min(t_tax[0], t_hand[0], t_obj[0])
+    _write_groundtruth(gt_path, t_tax - start, HUMAN_REGIONS, _region_forces(force), {"hand_scale": hand.scale})
+    motion = pa.table(
+        {
+            "t": t_hand - start,
+            "joints": pa.array(list(hand_traj.joints.astype(np.float32)), type=pa.list_(pa.float32(), 20)),
+            "wrist_pos": pa.array(list(hand_traj.wrist_pos), type=pa.list_(pa.float64(), 3)),
+            "wrist_quat": pa.array(list(hand_traj.wrist_quat), type=pa.list_(pa.float64(), 4)),
+        }
+    )
+    pq.write_table(motion, gt_path.with_suffix(".motion.parquet"))
+
+
+# Human glove joints -> LEAP joint targets (the replayed "method trajectory"): LEAP finger
+# order (mcp, rot, pip, dip) takes the human (flex, abd, pip, dip); thumb (cmc, axl, mcp, ipl).
+_HUMAN_FOR_LEAP = np.array([5, 4, 6, 7, 9, 8, 10, 11, 13, 12, 14, 15, 1, 0, 2, 3])
+
+
+def _write_replay(config: SynthConfig, job: RecordingJob, path: Path, gt_path: Path) -> None:
+    hand, traj, scene = _demonstration(config, job)
+    rng = _rng(config, job, 2 + config.replay_methods.index(job.method))
+    twintac = TwinTac(_rng(config, job, 50 + config.replay_methods.index(job.method)))
+    ref_duration = float(traj.t[-1])
+    speed, delay = rng.uniform(0.75, 0.95), rng.uniform(0.2, 0.5)
+    duration = delay + ref_duration / speed + 0.5
+
+    def t_ref(t: np.ndarray) -> np.ndarray:
+        return np.clip(speed * (t - delay), 0.0, ref_duration)
+
+    # the robot reproduces the human contacts, late by a per-region lag; the kinematic
+    # baseline misses some regions entirely
+    faithful = job.method != "dex-retargeting"
+    lag = rng.normal(0.04, 0.03, 8) if faithful else rng.normal(0.12, 0.06, 8)
+    kept = np.ones(8) if faithful else (rng.uniform(size=8) > 0.35).astype(float)
+    scale = rng.uniform(0.6, 1.2, 8)
+    t_ref_grid = np.arange(0.0, ref_duration, 0.005)
+    human = _region_forces(taxel_forces_along(hand, scene, traj.sample(t_ref_grid)))
+    robot_cols = [HUMAN_REGIONS.index(r) for r in ROBOT_REGIONS]
+
+    def robot_force(t: np.ndarray) -> np.ndarray:
+        return np.stack(
+            [kept[k] * scale[k] * np.interp(t_ref(t - lag[k]), t_ref_grid, human[:, c]) for k, c in enumerate(robot_cols)], 1
+        )
+
+    t_tt, t_fsr = _stamps(duration, 100.0, rng), _stamps(duration, 50.0, rng)
+    t_js, t_tg = _stamps(duration, 50.0, rng), _stamps(duration, 20.0, rng)
+    tt_force = robot_force(t_tt)
+    twintac_raw = twintac.read(tt_force[:, :4])
+    fsr_raw = fsr_readings(robot_force(t_fsr)[:, 4:], rng)
+    targets = traj.sample(t_ref(t_tg)).joints[:, _HUMAN_FOR_LEAP]
+    ref_js = traj.sample(t_ref(t_js - 0.05)).joints[:, _HUMAN_FOR_LEAP]  # servo lag behind the targets
+    pos = ref_js + rng.normal(0.0, 0.005, ref_js.shape)
+    vel = np.gradient(pos, t_js, axis=0)
+    effort = 3.0 * (traj.sample(t_ref(t_js)).joints[:, _HUMAN_FOR_LEAP] - pos)
+    t0_ns = EPOCH_NS + 10**15 + _start_offset_s(job) * 10**9
+    glove = RecordingJob("glove_session", job.task, job.subject, job.demo)
+    calib = RecordingJob("robot_calibration", job.task, job.subject, job.demo, job.method)
+    metadata = {
+        "task": job.task,
+        "subject": f"s{job.subject:02d}",
+        "method": job.method,
+        "reference_recording": glove.file_name,
+        "calibration_recording": calib.file_name,
+        "rig": "simulated-demonstrator",
+    }
+    with RecordingWriter(path, "robot_replay", metadata) as w:
+        events = sorted(
+            [(t, 0, i) for i, t in enumerate(t_tt)] + [(t, 1, i) for i, t in enumerate(t_fsr)]
+            + [(t, 2, i) for i, t in enumerate(t_js)] + [(t, 3, i) for i, t in enumerate(t_tg)]
+        )  # fmt: skip
+        for t, stream, i in events:
+            s = t0_ns + int(round(t * 1e9))
+            if stream == 0:
+                w.write("/twintac/raw", s, cdr.encode_tactile(s, "twintac", twintac_raw[i]))
+            elif stream == 1:
+                w.write("/fsr/palm", s, cdr.encode_tactile(s, "fsr_palm", fsr_raw[i]))
+            elif stream == 2:
+                w.write("/leap/joint_states", s, cdr.encode_joint_state(s, "leap", LEAP_JOINT_NAMES, pos[i], vel[i], effort[i]))
+            else:
+                w.write("/leap/joint_targets", s, cdr.encode_joint_state(s, "leap", LEAP_JOINT_NAMES, targets[i]))
+                w.write("/replay/reference_time", s, cdr.encode_reference_time(s, "leap", float(t_ref(np.array([t]))[0])))
+    start = min(t_tt[0], t_fsr[0], t_js[0], t_tg[0])
+    _write_groundtruth(gt_path, t_tt - start, ROBOT_REGIONS, tt_force, {"speed": speed, "delay": delay})
+
+
+def _write_calibration(config: SynthConfig, job: RecordingJob, path: Path, gt_path: Path) -> None:
+    rng = _rng(config, job, 40)
+    twintac = TwinTac(_rng(config, job, 50 + config.replay_methods.index(job.method)))
+    t = _stamps(config.calibration_s, 100.0, rng)
+    raw = twintac.read(np.zeros((len(t), 4)))
+    t0_ns = EPOCH_NS + 2 * 10**15 + _start_offset_s(job) * 10**9
+    with RecordingWriter(path, "robot_calibration", {"rig": "simulated-demonstrator", "sensor": "twintac"}) as w:
+        for i, ti in enumerate(t):
+            s = t0_ns + int(round(ti * 1e9))
+            w.write("/twintac/raw", s, cdr.encode_tactile(s, "twintac", raw[i]))
