@@ -290,7 +290,7 @@ def test_onset_error_known_answers() -> None:
     res = onset_error_ms([_traj_a(), _traj_b(), _traj_c()], regions=REGIONS2)
     p = res.pairs
     assert list(p.columns) == ["trajectory", "region", "t_ref_onset", "t_eval_onset", "error_ms", "valid"]
-    assert list(zip(p["trajectory"], p["region"])) == [
+    assert list(zip(p["trajectory"], p["region"], strict=True)) == [
         ("A", "T1"), ("A", "P1"), ("B", "T1"), ("B", "P1"), ("C", "T1"), ("C", "P1")
     ]
     assert p["valid"].tolist() == [True, True, False, False, False, True]

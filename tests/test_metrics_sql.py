@@ -188,14 +188,18 @@ def test_sql_pairs_follow_align_to_reference_and_array_scores(lake) -> None:
         assert tuple(int(x) for x in sql.loc[region, list(COUNT_COLUMNS)]) == (s.tp, s.fp, s.fn, s.tn)
     # The dropped samples are exactly those before the first reference sample.
     n_before = int((ev["t_ref"] < ref["t_ref"].min()).sum())
-    n_pairs = con.execute(f"SELECT count(*) FROM contact_pairs('human', 'real') WHERE sequence_id = '{seq}'").fetchone()[0]
+    n_pairs = con.execute(
+        f"SELECT count(*) FROM contact_pairs('human', 'real') WHERE sequence_id = '{seq}'"
+    ).fetchone()[0]
     assert n_pairs == len(ev) - n_before
     assert n_before > 0
 
 
 def test_orphan_sequence_is_dropped(lake) -> None:
     con, _ = lake
-    n = con.execute("SELECT count(*) FROM contact_pairs('human', 'sim') WHERE sequence_id = 'sim_orphan'").fetchone()[0]
+    n = con.execute(
+        "SELECT count(*) FROM contact_pairs('human', 'sim') WHERE sequence_id = 'sim_orphan'"
+    ).fetchone()[0]
     assert n == 0
 
 

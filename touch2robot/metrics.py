@@ -18,20 +18,30 @@ Conventions shared by every function here:
 * **Onsets.** The onset of a region is the time of its first contact sample; contact already
   present at the first sample counts as an onset at that sample's time.
 
+SQL twins live in ``touch2robot/sql/contact_metrics.sql`` (load with
+:func:`register_contact_macros`): ``contact_pairs``/``contact_counts``/``contact_score_slices``
+table macros and ``contact_precision``/``contact_recall``/``contact_f1``/``contact_fpr`` scalar
+macros; tests assert they return exactly what :func:`contact_counts_long` and
+:func:`contact_scores_table` return.
+
 No orchestration (Prefect) imports: this module is a pure library.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
-from typing import Literal, overload
+from typing import TYPE_CHECKING, Literal, overload
 
 import numpy as np
 import pandas as pd
 
 from schemas.tables import ROBOT_REGIONS
+
+if TYPE_CHECKING:
+    import duckdb
 
 __all__ = [
     "ALL",
@@ -175,15 +185,16 @@ def _counts_flat(ref: np.ndarray, ev: np.ndarray) -> ContactScores:
 
 def _counts_per_region(ref: np.ndarray, ev: np.ndarray) -> list[ContactScores]:
     n_regions = ref.shape[-1]
-    r = ref.reshape(-1, n_regions)
-    e = ev.reshape(-1, n_regions)
+    n_rows = math.prod(ref.shape[:-1])
+    r = ref.reshape(n_rows, n_regions)
+    e = ev.reshape(n_rows, n_regions)
     tp = np.zeros(n_regions, dtype=np.int64)
     n_ref = np.zeros(n_regions, dtype=np.int64)
     n_ev = np.zeros(n_regions, dtype=np.int64)
     rows = max(1, _CHUNK // max(n_regions, 1))
     for start in range(0, r.shape[0], rows):
         # A region-major copy of the chunk makes each region a contiguous run, so the fast
-        # contiguous count_nonzero applies (column-strided counting is ~4x slower).
+        # contiguous count_nonzero applies (column-strided counting is several times slower).
         rc = np.ascontiguousarray(r[start : start + rows].T)
         ec = np.ascontiguousarray(e[start : start + rows].T)
         both = rc & ec
@@ -191,13 +202,12 @@ def _counts_per_region(ref: np.ndarray, ev: np.ndarray) -> list[ContactScores]:
             tp[k] += np.count_nonzero(both[k])
             n_ref[k] += np.count_nonzero(rc[k])
             n_ev[k] += np.count_nonzero(ec[k])
-    total = r.shape[0]
     return [
         ContactScores(
             tp=int(tp[k]),
             fp=int(n_ev[k] - tp[k]),
             fn=int(n_ref[k] - tp[k]),
-            tn=int(total - n_ref[k] - n_ev[k] + tp[k]),
+            tn=int(n_rows - n_ref[k] - n_ev[k] + tp[k]),
         )
         for k in range(n_regions)
     ]
@@ -228,7 +238,8 @@ def contact_scores(
 
     Args:
         reference: ground-truth contact, shape ``(time, region)`` or stacked ``(..., region)``;
-            bool, or integers/floats holding only 0 and 1. Bool input is never copied.
+            bool, or integers/floats holding only 0 and 1. Contiguous bool input is never
+            copied; counting works in cache-sized chunks without full-size temporaries.
         evaluated: same shape as ``reference``, already aligned sample by sample
             (see :func:`align_to_reference`).
         regions: names of the last axis; defaults to ``ROBOT_REGIONS`` (needed only for the
@@ -400,7 +411,7 @@ def contact_scores_table(counts: pd.DataFrame, by: Sequence[str] = ("method", "t
     return summed
 
 
-def register_contact_macros(con: object) -> None:
+def register_contact_macros(con: duckdb.DuckDBPyConnection) -> None:
     """Create the DuckDB macros of ``touch2robot/sql/contact_metrics.sql`` on ``con``.
 
     DuckDB binds table macros when they are created, so a table or view named ``contacts``
@@ -408,7 +419,7 @@ def register_contact_macros(con: object) -> None:
     redefinition of that view. See the SQL file for the macro names and how to call them.
     """
     sql = resources.files("touch2robot.sql").joinpath("contact_metrics.sql").read_text()
-    con.execute(sql)  # type: ignore[attr-defined]
+    con.execute(sql)
 
 
 # --------------------------------------------------------------------------- onsets
