@@ -150,7 +150,7 @@ thresholds = pa.schema(
     [
         pa.field("recording_id", pa.string(), nullable=False),
         pa.field("sensor", pa.string(), nullable=False),  # glove | twintac | fsr
-        pa.field("group", pa.string(), nullable=False),  # fingertip | palm | channel_<i>
+        pa.field("applies_to", pa.string(), nullable=False),  # fingertip | palm (glove) or channel_<i>
         pa.field("threshold", pa.float64(), nullable=False),
         pa.field("baseline", pa.float64()),
         pa.field("noise", pa.float64()),

@@ -20,8 +20,8 @@ def glove_readings(taxel_force: np.ndarray, t: np.ndarray, rng: np.random.Genera
     n = taxel_force.shape[0]
     base_level = rng.uniform(40.0, 600.0)
     baseline = base_level + rng.normal(0.0, 0.08 * base_level, N_TAXELS)
-    gain = rng.uniform(15.0, 45.0) * rng.uniform(0.7, 1.3, N_TAXELS)  # counts per N
-    noise = rng.uniform(0.8, 2.5)
+    gain = rng.uniform(25.0, 60.0) * rng.uniform(0.7, 1.3, N_TAXELS)  # counts per N
+    noise = rng.uniform(0.5, 1.5)
     crosstalk = rng.uniform(0.02, 0.08)
     rows = taxel_force.reshape(n, -1, CROSSTALK_ROW).mean(axis=2)
     leak = np.repeat(rows, CROSSTALK_ROW, axis=1) * crosstalk

@@ -1,0 +1,48 @@
+"""Flow `ingest`: MCAP recordings -> Parquet lake -> contacts -> DuckDB catalog."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from prefect import flow, get_run_logger, unmapped
+from prefect.task_runners import ThreadPoolTaskRunner
+
+from tasks.common import file_digest, stored
+from tasks.ingest import (
+    extract_human_contacts,
+    extract_real_contacts,
+    ingest_recording,
+    refresh_catalog,
+    remove_superseded,
+    report_ingest,
+)
+from touch2robot.config import load_profile
+from touch2robot.ingest import link_replays, recording_rows
+from touch2robot.settings import DataLayout
+
+
+@flow(name="ingest", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=True)
+def ingest(profile: str = "smoke", data: str | None = None, folder: str | None = None) -> dict:
+    """Ingest every MCAP under ``folder`` (default ``<data>/recordings``): bad files are
+    quarantined with a reason; contacts and thresholds are extracted; the catalog is refreshed."""
+    layout = DataLayout.from_env(data)
+    config = load_profile(profile).contacts
+    lake = str(layout.lake)
+    paths = sorted(str(p) for p in Path(folder or layout.recordings).rglob("*.mcap"))
+    digests = [file_digest(p) for p in paths]
+    results = [f.result() for f in stored(ingest_recording, layout.results).map(paths, digests, unmapped(lake))]
+    current = {r["path"]: r["recording_id"] for r in results if r["status"] != "quarantined"}
+    remove_superseded(lake, current)
+    gloves, links, problems = link_replays(recording_rows(layout.lake).to_pylist())
+    for line in problems:
+        get_run_logger().warning(line)
+    human = stored(extract_human_contacts, layout.results).map(gloves, unmapped(config), unmapped(lake))
+    real = stored(extract_real_contacts, layout.results).map(
+        [link.replay for link in links], [link.calibration_id for link in links], [link.reference for link in links], unmapped(config), unmapped(lake)
+    )
+    summaries = [f.result() for f in human] + [f.result() for f in real]
+    refresh_catalog(str(layout.root))
+    report = report_ingest(str(layout.root), profile, results, summaries)
+    counts = {s: sum(r["status"] == s for r in results) for s in ("ingested", "unchanged", "quarantined")}
+    print(f"ingest: {counts} -> {layout.catalog}")
+    return {**counts, "files": len(results), "report": report}

@@ -1,0 +1,17 @@
+"""Flow `pipeline`: every stage that exists, in order, on one profile."""
+
+from __future__ import annotations
+
+from prefect import flow
+
+from flows.ingest import ingest
+from flows.synth import synth
+
+
+@flow(name="pipeline", log_prints=True)
+def pipeline(profile: str = "smoke", data: str | None = None, synthesize: bool = True) -> dict:
+    """Simulated demonstrator (unless ``synthesize`` is false: bring your own recordings
+    in ``<data>/recordings``) -> ingest and contacts."""
+    if synthesize:
+        synth(profile=profile, data=data)
+    return {"ingest": ingest(profile=profile, data=data)}

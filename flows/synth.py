@@ -1,0 +1,27 @@
+"""Flow `synth`: the simulated demonstrator writes a profile's recordings."""
+
+from __future__ import annotations
+
+from prefect import flow, unmapped
+from prefect.task_runners import ThreadPoolTaskRunner
+
+from tasks.common import stored
+from tasks.synth import synthesize_ratings, synthesize_recording
+from touch2robot.config import load_profile
+from touch2robot.settings import DataLayout
+from touch2robot.synth.generate import plan
+
+
+@flow(name="synth", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=True)
+def synth(profile: str = "smoke", data: str | None = None) -> list[str]:
+    """Write the profile's glove sessions, robot replays, calibrations and the synthetic
+    user-study ratings under ``<data>/recordings`` (ground truth under ``<data>/groundtruth``)."""
+    layout = DataLayout.from_env(data)
+    config = load_profile(profile).synth
+    write = stored(synthesize_recording, layout.results)
+    futures = write.map(unmapped(config), plan(config), unmapped(str(layout.recordings)), unmapped(str(layout.groundtruth)))
+    ratings = stored(synthesize_ratings, layout.results).submit(str(layout.recordings / "user_study" / "ratings_SYNTHETIC.csv"), config.seed)
+    paths = [f.result() for f in futures]
+    ratings.result()
+    print(f"{len(paths)} recordings in {layout.recordings}")
+    return paths

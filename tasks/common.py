@@ -1,0 +1,59 @@
+"""What every Prefect task of the project shares: a cache policy that survives new
+processes and sees the library code, result storage under the data folder."""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import util
+from pathlib import Path
+from typing import Any
+
+from prefect.cache_policies import INPUTS, TASK_SOURCE, CachePolicy
+
+
+@lru_cache(maxsize=None)
+def source_digest(module: str) -> str:
+    """sha256 over the source files of a module or package (all .py files below it)."""
+    spec = util.find_spec(module)
+    if spec is None or spec.origin is None:
+        raise ModuleNotFoundError(module)
+    origin = Path(spec.origin)
+    paths = sorted(origin.parent.rglob("*.py")) if origin.name == "__init__.py" else [origin]
+    h = hashlib.sha256()
+    for p in paths:
+        h.update(p.as_posix().encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+@dataclass
+class LibraryCode(CachePolicy):
+    """Cache key part for the library code a task calls: TASK_SOURCE sees only the task
+    function's own source, not the helpers it calls, so a library change must be keyed too."""
+
+    modules: tuple[str, ...] = ()
+
+    def compute_key(self, task_ctx: Any, inputs: dict[str, Any], flow_parameters: dict[str, Any], **kwargs: Any) -> str:
+        return hashlib.sha256("".join(source_digest(m) for m in self.modules).encode()).hexdigest()
+
+
+def cache_policy(*modules: str) -> CachePolicy:
+    """INPUTS + TASK_SOURCE + the named library modules (and the schemas, always)."""
+    return INPUTS + TASK_SOURCE + LibraryCode(modules=("schemas", *modules))
+
+
+def file_digest(path: str | Path) -> str:
+    """Content hash of an input file: a path alone is no cache key."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def stored(task_obj: Any, results: Path) -> Any:
+    """The task with its results persisted under ``results`` (the data folder a flow run
+    was given), so the cache follows the data folder, not the process environment."""
+    return task_obj.with_options(result_storage=results, persist_result=True)

@@ -1,0 +1,56 @@
+"""Typed configuration: a *profile* (smoke, local, paper, or your own YAML file) holds one
+section per stage. Every section's defaults are the paper's values; the profile files
+under ``touch2robot/profiles/`` only override sizes. Unknown keys are errors."""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+import yaml
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from touch2robot.contacts.config import ContactsConfig
+from touch2robot.synth.config import SynthConfig
+
+BUILTIN_PROFILES = ("smoke", "local", "paper")
+
+
+class Profile(BaseModel):
+    """All stage configurations of one run."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    name: str = "paper"
+    description: str = ""
+    synth: SynthConfig = SynthConfig()
+    contacts: ContactsConfig = ContactsConfig()
+
+
+class ProfileError(ValueError):
+    """A profile file that cannot be read or validated; the message names the file and field."""
+
+
+def load_profile(name_or_path: str | Path) -> Profile:
+    """A built-in profile by name, or a YAML file by path."""
+    path = Path(name_or_path)
+    if path.suffix in (".yaml", ".yml") or path.exists():
+        if not path.is_file():
+            raise ProfileError(f"profile file {path} does not exist")
+        text, origin = path.read_text(), str(path)
+    elif str(name_or_path) in BUILTIN_PROFILES:
+        res = resources.files("touch2robot.profiles") / f"{name_or_path}.yaml"
+        text, origin = res.read_text(), f"built-in profile {name_or_path!r}"
+    else:
+        raise ProfileError(f"unknown profile {name_or_path!r}: use one of {', '.join(BUILTIN_PROFILES)} or a YAML file path")
+    try:
+        data = yaml.safe_load(text) or {}
+    except yaml.YAMLError as e:
+        raise ProfileError(f"{origin}: not valid YAML ({e})") from None
+    if not isinstance(data, dict):
+        raise ProfileError(f"{origin}: expected a mapping of stage sections, got {type(data).__name__}")
+    try:
+        return Profile.model_validate(data)
+    except ValidationError as e:
+        fields = "; ".join(f"{'.'.join(map(str, err['loc']))}: {err['msg']}" for err in e.errors())
+        raise ProfileError(f"{origin}: {fields}") from None

@@ -1,0 +1,97 @@
+"""Contacts from the lake: one glove session -> human contacts + thresholds; one robot
+replay (with its calibration and reference session) -> real contacts + thresholds."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from schemas.glove import TAXEL_REGION
+from schemas.tables import HUMAN_REGIONS, ROBOT_REGIONS
+from touch2robot import lake as lake_io
+from touch2robot.contacts import ContactsConfig, glove_contacts, long_rows, real_contacts, twintac_thresholds
+
+
+def _matrix(table: pa.Table, column: str) -> np.ndarray:
+    col = table[column].combine_chunks()
+    return col.flatten().to_numpy(zero_copy_only=False).reshape(len(col), -1)
+
+
+def _read(lake: Path, table: str, recording_id: str) -> pa.Table:
+    path = lake_io.file_path(lake, table, recording_id)
+    if not path.exists():
+        raise FileNotFoundError(f"table {table!r} has no rows for recording {recording_id} ({path})")
+    return pq.read_table(path)
+
+
+def human_contacts(lake: Path, recording: dict, config: ContactsConfig) -> tuple[pa.Table, pa.Table]:
+    """Contacts (source "human", the 8 robot-paired regions; T5 is dropped) and the two
+    glove thresholds of one ingested glove session."""
+    rid = recording["recording_id"]
+    taxels = _read(lake, "taxels", rid)
+    t = taxels["t"].to_numpy()
+    contact, resp, thr = glove_contacts(t, _matrix(taxels, "values"), config)
+    keep = [HUMAN_REGIONS.index(r) for r in ROBOT_REGIONS]
+    rows = long_rows(
+        source="human", method="human", task=recording["task"], subject=recording["subject"],
+        sequence_id=rid, reference_id=rid, t=t, t_ref=t, regions=ROBOT_REGIONS,
+        contact=contact[:, keep], value=resp[:, keep],
+    )  # fmt: skip
+    baseline = float(np.median(thr.baseline[np.asarray(TAXEL_REGION) != "-"]))
+    method = f"k*robust-noise of the smoothed regional response (k={config.glove_noise_k}, window={config.smoothing_samples})"
+    thresholds = pa.table(
+        {
+            "recording_id": [rid, rid],
+            "sensor": ["glove", "glove"],
+            "applies_to": ["fingertip", "palm"],
+            "threshold": [thr.fingertip, thr.palm],
+            "baseline": [baseline, baseline],
+            "noise": [thr.fingertip / config.glove_noise_k, thr.palm / config.glove_noise_k],
+            "method": [method, method],
+        }
+    )
+    return rows, thresholds
+
+
+def replay_contacts(
+    lake: Path, replay: dict, calibration_id: str, reference: dict | None, config: ContactsConfig
+) -> tuple[pa.Table, pa.Table]:
+    """Real-robot contacts of one replay (source "real"), on both its own clock ``t`` and
+    the reference trajectory's clock ``t_ref`` (the recorded time map, interpolated), and
+    the TwinTac/FSR thresholds used."""
+    rid = replay["recording_id"]
+    threshold, mean, std = twintac_thresholds(_matrix(_read(lake, "twintac", calibration_id), "values"), config)
+    twintac = _read(lake, "twintac", rid)
+    fsr = _read(lake, "fsr", rid)
+    tmap = _read(lake, "time_map", rid)
+    map_t, map_ref = tmap["t"].to_numpy(), tmap["t_ref"].to_numpy()
+    tips, palm = real_contacts(_matrix(twintac, "values"), threshold, _matrix(fsr, "values"), config)
+    t_tt, t_fsr = twintac["t"].to_numpy(), fsr["t"].to_numpy()
+    tt_values = _matrix(twintac, "values") - mean
+    tip_value = np.stack([tt_values[:, 4 * k : 4 * k + 4].max(axis=1) for k in range(4)], 1)
+    common = dict(
+        source="real", method=replay["method"], task=replay["task"], subject=replay["subject"],
+        sequence_id=rid, reference_id=reference["recording_id"] if reference else "",
+    )  # fmt: skip
+    rows = pa.concat_tables(
+        [
+            long_rows(**common, t=t_tt, t_ref=np.interp(t_tt, map_t, map_ref), regions=ROBOT_REGIONS[:4], contact=tips, value=tip_value),
+            long_rows(**common, t=t_fsr, t_ref=np.interp(t_fsr, map_t, map_ref), regions=ROBOT_REGIONS[4:], contact=palm, value=_matrix(fsr, "values")),
+        ]
+    )
+    n = len(threshold)
+    thresholds = pa.table(
+        {
+            "recording_id": [rid] * (n + 4),
+            "sensor": ["twintac"] * n + ["fsr"] * 4,
+            "applies_to": [f"channel_{i}" for i in range(n)] + [f"channel_{i}" for i in range(4)],
+            "threshold": np.r_[threshold, np.full(4, config.fsr_threshold)],
+            "baseline": np.r_[mean, np.zeros(4)],
+            "noise": np.r_[std, np.zeros(4)],
+            "method": [f"calibration {calibration_id}: mean + {config.twintac_noise_k} std"] * n + ["FSR native units, > threshold"] * 4,
+        }
+    )
+    return rows, thresholds

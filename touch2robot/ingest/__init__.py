@@ -1,0 +1,125 @@
+"""Ingestion: MCAP recordings -> Parquet stream tables + a ``recordings`` row per file.
+
+A file is ingested whole or quarantined whole: it is read and validated completely
+before anything is written, its stream tables are written first and its ``recordings``
+row last (the commit marker), each file atomically. Re-ingesting an unchanged file
+writes nothing; a changed file gets a new id (content hash)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from touch2robot import lake as lake_io
+from touch2robot.ingest.reader import DecodedRecording, RecordingError, content_id, counts_json, read_recording
+from touch2robot.ingest.tables import stream_tables
+
+__all__ = ["IngestResult", "RecordingError", "ReplayLink", "ingest_file", "link_replays", "read_recording", "recording_rows", "superseded_ids"]
+
+
+@dataclass(frozen=True)
+class IngestResult:
+    recording_id: str
+    path: str
+    status: str  # "ingested" | "quarantined" | "unchanged"
+    reason: str
+    kind: str
+    rows: int
+
+
+def _row(path: Path, recording_id: str, size: int, status: str, reason: str, rec: DecodedRecording | None) -> pa.Table:
+    meta = rec.metadata if rec else {}
+    duration = (rec.end_ns - rec.start_ns) / 1e9 if rec else None
+    return pa.table(
+        {
+            "recording_id": [recording_id],
+            "path": [str(path)],
+            "file_name": [path.name],
+            "size_bytes": [size],
+            "kind": [meta.get("kind")],
+            "task": [meta.get("task")],
+            "subject": [meta.get("subject")],
+            "method": [meta.get("method")],
+            "reference_recording": [meta.get("reference_recording")],
+            "calibration_recording": [meta.get("calibration_recording")],
+            "start_time_s": [rec.start_ns / 1e9 if rec else None],
+            "end_time_s": [rec.end_ns / 1e9 if rec else None],
+            "duration_s": [duration],
+            "message_counts": [counts_json(rec.message_counts) if rec else None],
+            "status": [status],
+            "reason": [reason],
+            "ingested_at": [datetime.now(UTC)],
+        }
+    )
+
+
+def ingest_file(path: Path, lake: Path) -> IngestResult:
+    """Ingest one MCAP file into the lake (or quarantine it with the reason)."""
+    path = Path(path).resolve()
+    try:
+        rec = read_recording(path)
+    except RecordingError as e:
+        data = path.read_bytes() if path.is_file() else b""
+        rid = content_id(data)
+        lake_io.remove_id(lake, rid)  # a bad file never leaves rows behind
+        lake_io.write_rows(lake, "recordings", rid, _row(path, rid, len(data), "quarantined", e.reason, None))
+        return IngestResult(rid, str(path), "quarantined", e.reason, "", 0)
+    marker = lake_io.file_path(lake, "recordings", rec.recording_id)
+    if marker.exists() and pq.read_table(marker, columns=["status"])["status"][0].as_py() == "ingested":
+        return IngestResult(rec.recording_id, str(path), "unchanged", "", rec.kind, 0)
+    rows = 0
+    for table, rows_table in stream_tables(rec).items():
+        lake_io.write_rows(lake, table, rec.recording_id, rows_table)
+        rows += rows_table.num_rows
+    lake_io.write_rows(lake, "recordings", rec.recording_id, _row(path, rec.recording_id, rec.size_bytes, "ingested", "", rec))
+    return IngestResult(rec.recording_id, str(path), "ingested", "", rec.kind, rows)
+
+
+def recording_rows(lake: Path) -> pa.Table:
+    """All rows of the ``recordings`` table (empty table with the schema if none)."""
+    from schemas.tables import recordings
+
+    paths = lake_io.files(lake, "recordings")
+    if not paths:
+        return recordings.empty_table()
+    return pa.concat_tables([pq.read_table(p, schema=recordings) for p in paths])
+
+
+def superseded_ids(lake: Path, current: dict[str, str]) -> list[str]:
+    """Ids of earlier versions of files whose content changed: ``current`` maps each
+    ingested path to its present id; any other id recorded for the same path is stale."""
+    table = recording_rows(lake).to_pydict()
+    return sorted({rid for rid, p in zip(table["recording_id"], table["path"]) if p in current and current[p] != rid})
+
+
+@dataclass(frozen=True)
+class ReplayLink:
+    """A replay with the calibration and glove session it names (by file name)."""
+
+    replay: dict
+    calibration_id: str
+    reference: dict | None
+
+
+def link_replays(rows: list[dict]) -> tuple[list[dict], list[ReplayLink], list[str]]:
+    """Split ingested recordings into glove sessions and replays linked to their
+    calibration and reference; returns (gloves, links, problems) where a replay whose
+    calibration is missing is left out with a problem line (its reference may be absent:
+    then its contacts have no reference_id)."""
+    ok = [r for r in rows if r["status"] == "ingested"]
+    by_name = {r["file_name"]: r for r in ok}
+    gloves = [r for r in ok if r["kind"] == "glove_session"]
+    links, problems = [], []
+    for r in ok:
+        if r["kind"] != "robot_replay":
+            continue
+        calib = by_name.get(r["calibration_recording"])
+        if calib is None or calib["kind"] != "robot_calibration":
+            problems.append(f"{r['file_name']}: calibration {r['calibration_recording']!r} is not ingested; no real contacts")
+            continue
+        links.append(ReplayLink(r, calib["recording_id"], by_name.get(r["reference_recording"])))
+    return gloves, links, problems

@@ -1,0 +1,1 @@
+"""The simulated demonstrator (the embedded default source of recordings)."""
