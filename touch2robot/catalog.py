@@ -85,6 +85,12 @@ def connect_read_only(layout: DataLayout) -> duckdb.DuckDBPyConnection:
     if not layout.catalog.exists():
         raise FileNotFoundError(f"no catalog at {layout.catalog}: run `touch2robot ingest` (or `touch2robot run`) first")
     con = duckdb.connect(str(layout.catalog), read_only=True)
+    if con.sql("SELECT current_setting('lock_configuration')").fetchall()[0][0]:
+        # another connection of this process already sandboxed the shared database instance
+        if con.sql("SELECT current_setting('enable_external_access')").fetchall()[0][0]:
+            con.close()
+            raise RuntimeError(f"{layout.catalog} is open in this process with external access enabled and locked")
+        return con
     con.execute(f"SET allowed_directories = ['{layout.lake.as_posix()}/']")
     con.execute("SET enable_external_access = false")
     con.execute("SET lock_configuration = true")

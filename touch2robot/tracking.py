@@ -13,19 +13,35 @@ import mlflow
 from touch2robot.settings import DataLayout
 
 
+def local_uri(layout: DataLayout) -> str:
+    return f"sqlite:///{layout.mlflow_db}"
+
+
+# Local URIs this process pointed MLflow at: set_tracking_uri exports MLFLOW_TRACKING_URI,
+# which must not then be mistaken for a server the user chose.
+_LOCAL_URIS: set[str] = set()
+
+
 def tracking_uri(layout: DataLayout) -> str:
-    return os.environ.get("MLFLOW_TRACKING_URI") or f"sqlite:///{layout.mlflow_db}"
+    """The user's MLFLOW_TRACKING_URI (a server), else the data folder's SQLite file."""
+    env = os.environ.get("MLFLOW_TRACKING_URI")
+    if env and env not in _LOCAL_URIS:
+        return env
+    uri = local_uri(layout)
+    _LOCAL_URIS.add(uri)
+    return uri
 
 
 def experiment(layout: DataLayout, stage: str) -> str:
     """Point MLflow at the project's store and return the stage's experiment id."""
-    mlflow.set_tracking_uri(tracking_uri(layout))
+    uri = tracking_uri(layout)
+    mlflow.set_tracking_uri(uri)  # note: MLflow also exports this as MLFLOW_TRACKING_URI
     name = f"touch2robot/{stage}"
     found = mlflow.get_experiment_by_name(name)
     if found is not None:
         return found.experiment_id
     # a remote server keeps its own artefact store; the local default keeps them in the data folder
-    location = None if os.environ.get("MLFLOW_TRACKING_URI") else (layout.mlartifacts / stage).as_uri()
+    location = (layout.mlartifacts / stage).as_uri() if uri == local_uri(layout) else None
     try:
         return mlflow.create_experiment(name, artifact_location=location)
     except mlflow.exceptions.MlflowException:

@@ -1,0 +1,40 @@
+"""Shared test setup: every test process works in its own temporary data folder and
+Prefect home (nothing is written into the repository), with Prefect's ephemeral API
+given time to start on a 2-core machine."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import pytest
+
+_SESSION_DIR = Path(tempfile.mkdtemp(prefix="touch2robot-tests-"))
+os.environ["TOUCH2ROBOT_DATA"] = str(_SESSION_DIR / "data")
+os.environ["PREFECT_HOME"] = str(_SESSION_DIR / "prefect")
+os.environ["PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS"] = "180"
+os.environ["PREFECT_SERVER_ANALYTICS_ENABLED"] = "false"
+os.environ.setdefault("MUJOCO_GL", "egl")
+os.environ.pop("MLFLOW_TRACKING_URI", None)
+os.environ.pop("PREFECT_API_URL", None)
+
+
+@pytest.fixture(scope="session")
+def session_dir() -> Path:
+    return _SESSION_DIR
+
+
+@pytest.fixture(scope="session")
+def smoke_data(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A data folder with the smoke profile's demonstrator recordings and ground truth
+    (library calls only, a few seconds). Tests must copy it before changing it."""
+    from touch2robot.config import load_profile
+    from touch2robot.settings import DataLayout
+    from touch2robot.synth.generate import plan, write_recording
+
+    layout = DataLayout(tmp_path_factory.mktemp("smoke") / "data")
+    config = load_profile("smoke").synth
+    for job in plan(config):
+        write_recording(config, job, layout.recordings, layout.groundtruth)
+    return layout.root

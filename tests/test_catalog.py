@@ -1,0 +1,72 @@
+"""The DuckDB catalog: views over the lake, read-only SQL sandboxed to the lake."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from touch2robot import catalog
+from touch2robot.config import load_profile
+from touch2robot.contacts.extract import human_contacts
+from touch2robot import lake as lake_io
+from touch2robot.ingest import ingest_file, recording_rows
+from touch2robot.settings import DataLayout
+
+
+@pytest.fixture(scope="module")
+def layout(smoke_data: Path, tmp_path_factory: pytest.TempPathFactory) -> DataLayout:
+    layout = DataLayout(tmp_path_factory.mktemp("catalog") / "data")
+    for p in sorted((smoke_data / "recordings").glob("*_glove.mcap")):
+        ingest_file(p, layout.lake)
+    config = load_profile("smoke").contacts
+    for rec in recording_rows(layout.lake).to_pylist():
+        rows, _ = human_contacts(layout.lake, rec, config)
+        lake_io.write_rows(layout.lake, "contacts", rec["recording_id"], rows, {"source": "human", "task": rec["task"]})
+    catalog.refresh(layout)
+    return layout
+
+
+def test_views_and_the_readme_query(layout: DataLayout) -> None:
+    result = catalog.query(layout, "SELECT region, avg(contact::INT) AS share FROM contacts GROUP BY ALL ORDER BY region").to_pylist()
+    assert [r["region"] for r in result] == ["P1", "P2", "P3", "P4", "T1", "T2", "T3", "T4"]
+    assert all(0 <= r["share"] <= 1 for r in result)
+    tasks = catalog.query(layout, "SELECT DISTINCT task, source FROM contacts ORDER BY task").to_pylist()
+    assert {r["task"] for r in tasks} == {"pick", "rotate", "wipe", "drawer"} and {r["source"] for r in tasks} == {"human"}
+    # tables with no rows yet are typed empty views, so queries on them work
+    assert catalog.query(layout, "SELECT count(*) AS n FROM twintac").to_pylist() == [{"n": 0}]
+
+
+@pytest.mark.parametrize(
+    "sql",
+    [
+        "CREATE TABLE x (a INT)",
+        "INSERT INTO contacts VALUES (1)",
+        "COPY (SELECT 1) TO '/tmp/touch2robot-evil.csv'",
+        "ATTACH '/tmp/other.duckdb'",
+        "SELECT 1; DROP VIEW contacts",
+    ],
+)
+def test_writes_are_refused(layout: DataLayout, sql: str) -> None:
+    with pytest.raises(catalog.QueryRefused):
+        catalog.query(layout, sql)
+    assert not Path("/tmp/touch2robot-evil.csv").exists()
+
+
+def test_files_outside_the_lake_cannot_be_read(layout: DataLayout) -> None:
+    import duckdb
+
+    with pytest.raises(duckdb.PermissionException):
+        catalog.query(layout, "SELECT * FROM read_csv('/etc/passwd')")
+    with pytest.raises(duckdb.PermissionException):
+        catalog.query(layout, f"SELECT * FROM read_parquet('{layout.root}/../*.parquet')")
+
+
+def test_readers_coexist_with_each_other(layout: DataLayout) -> None:
+    a = catalog.connect_read_only(layout)
+    b = catalog.connect_read_only(layout)
+    try:
+        assert a.sql("SELECT count(*) FROM recordings").fetchall() == b.sql("SELECT count(*) FROM recordings").fetchall()
+    finally:
+        a.close()
+        b.close()

@@ -1,0 +1,43 @@
+"""Profiles are typed data files; bad ones fail with the file and field named."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from touch2robot.config import BUILTIN_PROFILES, ProfileError, load_profile
+
+
+@pytest.mark.parametrize("name", BUILTIN_PROFILES)
+def test_builtin_profiles_load(name: str) -> None:
+    profile = load_profile(name)
+    assert profile.name == name
+
+
+def test_paper_profile_is_the_code_defaults() -> None:
+    paper = load_profile("paper")
+    assert paper.synth.subjects * paper.synth.demos_per_subject == 30
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("synth:\n  subjects: 0\n", "synth.subjects"),
+        ("synth:\n  subjcts: 2\n", "synth.subjcts"),
+        ("contacts: [1, 2]\n", "contacts"),
+        ("synth: {subjects: 2\n", "not valid YAML"),
+        ("- a\n- b\n", "expected a mapping"),
+    ],
+)
+def test_bad_profile_names_file_and_field(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "mine.yaml"
+    path.write_text(text)
+    with pytest.raises(ProfileError, match="mine.yaml") as err:
+        load_profile(path)
+    assert message in str(err.value)
+
+
+def test_unknown_profile_name() -> None:
+    with pytest.raises(ProfileError, match="unknown profile 'tiny'"):
+        load_profile("tiny")

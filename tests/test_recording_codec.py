@@ -1,0 +1,96 @@
+"""The CDR codec and MCAP writer against independent readers (mcap_ros2, rosbags)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap_ros2.decoder import DecoderFactory
+
+from schemas.glove import GLOVE_JOINT_NAMES
+from schemas.messages import LEAP_JOINT_NAMES
+from touch2robot.recording import cdr
+from touch2robot.recording.writer import RecordingWriter
+
+
+def _messages(rng: np.random.Generator) -> dict[str, tuple[str, bytes]]:
+    return {
+        "tactile": ("touch2robot_msgs/msg/TactileArray", cdr.encode_tactile(123_456_789_012, "glove_right", rng.normal(size=256))),
+        "joints": ("sensor_msgs/msg/JointState", cdr.encode_joint_state(5, "leap", LEAP_JOINT_NAMES, rng.normal(size=16), rng.normal(size=16), rng.normal(size=16))),
+        "pose": ("geometry_msgs/msg/PoseStamped", cdr.encode_pose_stamped(7, "world", rng.normal(size=3), np.array([0.5, 0.5, 0.5, 0.5]))),
+        "poses": ("geometry_msgs/msg/PoseArray", cdr.encode_pose_array(9, "world", rng.normal(size=(21, 3)))),
+        "reftime": ("touch2robot_msgs/msg/ReferenceTime", cdr.encode_reference_time(11, "leap", 3.25)),
+    }
+
+
+def test_batch_decoding_equals_per_message_decoding() -> None:
+    rng = np.random.default_rng(0)
+    for msg_type, _ in _messages(rng).values():
+        payloads = [m for t, m in (_messages(np.random.default_rng(s))[k] for s in range(5) for k in _messages(rng)) if t == msg_type]
+        batch = cdr.decode_batch(msg_type, payloads)
+        for i, p in enumerate(payloads):
+            one = cdr.decode(msg_type, p)
+            assert one["stamp_ns"] == batch.stamp_ns[i]
+            for name, col in batch.fields.items():
+                np.testing.assert_array_equal(np.atleast_1d(one[name]), col[i])
+
+
+def test_slow_path_when_layouts_differ() -> None:
+    a = cdr.encode_tactile(1, "a", np.arange(4))
+    b = cdr.encode_tactile(2, "bbbb", np.arange(4) + 1)  # different frame id -> different layout
+    batch = cdr.decode_batch("touch2robot_msgs/msg/TactileArray", [a, b])
+    np.testing.assert_array_equal(batch.fields["values"], [[0, 1, 2, 3], [1, 2, 3, 4]])
+    with pytest.raises(cdr.CdrError, match="length"):
+        cdr.decode_batch("touch2robot_msgs/msg/TactileArray", [a, cdr.encode_tactile(2, "a", np.arange(5))])
+
+
+def test_truncated_message_is_a_clear_error() -> None:
+    data = cdr.encode_tactile(1, "glove", np.arange(256))
+    with pytest.raises(cdr.CdrError, match="message 0"):
+        cdr.decode_batch("touch2robot_msgs/msg/TactileArray", [data[:-10]])
+
+
+def _write_replay(path: Path) -> None:
+    meta = {"task": "pick", "subject": "s01", "method": "touch2robot", "reference_recording": "g.mcap", "calibration_recording": "c.mcap"}
+    with RecordingWriter(path, "robot_replay", meta) as w:
+        for i in range(3):
+            s = 1_000_000_000 + i * 10_000_000
+            w.write("/twintac/raw", s, cdr.encode_tactile(s, "twintac", np.arange(16) + i))
+            w.write("/leap/joint_states", s, cdr.encode_joint_state(s, "leap", LEAP_JOINT_NAMES, np.full(16, 0.1 * i)))
+            w.write("/replay/reference_time", s, cdr.encode_reference_time(s, "leap", 0.5 * i))
+
+
+def test_mcap_ros2_decoder_reads_our_files(tmp_path: Path) -> None:
+    path = tmp_path / "replay.mcap"
+    _write_replay(path)
+    with open(path, "rb") as f:
+        decoded = [(c.topic, m) for _, c, _, m in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]
+    tactile = [m for t, m in decoded if t == "/twintac/raw"]
+    assert [list(m.values)[:3] for m in tactile] == [[0, 1, 2], [1, 2, 3], [2, 3, 4]]
+    states = [m for t, m in decoded if t == "/leap/joint_states"]
+    assert tuple(states[0].name) == LEAP_JOINT_NAMES and states[2].position[0] == pytest.approx(0.2)
+    assert [m.reference_time for t, m in decoded if t == "/replay/reference_time"] == [0.0, 0.5, 1.0]
+
+
+def test_rosbags_reads_our_files(tmp_path: Path) -> None:
+    from rosbags.highlevel import AnyReader
+
+    path = tmp_path / "replay.mcap"
+    _write_replay(path)
+    with AnyReader([path]) as reader:
+        conns = [c for c in reader.connections if c.topic == "/leap/joint_states"]
+        msgs = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(connections=conns)]
+    assert len(msgs) == 3
+    assert list(msgs[1].name) == list(LEAP_JOINT_NAMES)
+    np.testing.assert_allclose(msgs[1].position, np.full(16, 0.1))
+
+
+def test_writer_leaves_no_file_on_error(tmp_path: Path) -> None:
+    path = tmp_path / "g.mcap"
+    with pytest.raises(RuntimeError):
+        with RecordingWriter(path, "glove_session", {"task": "pick", "subject": "s01"}) as w:
+            w.write("/glove/hand_joints", 1, cdr.encode_joint_state(1, "glove", GLOVE_JOINT_NAMES, np.zeros(20)))
+            raise RuntimeError("recorder crashed")
+    assert list(tmp_path.iterdir()) == []

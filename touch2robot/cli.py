@@ -1,0 +1,153 @@
+"""The ``touch2robot`` command. Every command works on one data folder (``--data``,
+``$TOUCH2ROBOT_DATA`` or ``./data``) and needs no server: Prefect runs an ephemeral API,
+MLflow a SQLite file, DuckDB in-process."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+app = typer.Typer(help=__doc__, no_args_is_help=True, pretty_exceptions_show_locals=False)
+console = Console()
+
+DataOpt = Annotated[Path | None, typer.Option("--data", "-d", help="data folder (default $TOUCH2ROBOT_DATA or ./data)")]
+ProfileOpt = Annotated[str, typer.Option("--profile", "-p", help="smoke | local | paper | path/to/profile.yaml")]
+
+
+def _layout(data: Path | None):
+    from touch2robot.environment import configure
+    from touch2robot.settings import DataLayout
+
+    return configure(DataLayout.from_env(data))
+
+
+def _check_profile(profile: str) -> None:
+    from touch2robot.config import ProfileError, load_profile
+
+    try:
+        load_profile(profile)
+    except ProfileError as e:
+        console.print(f"[red]bad profile:[/red] {e}")
+        raise typer.Exit(2) from None
+
+
+@app.command()
+def synth(profile: ProfileOpt = "smoke", data: DataOpt = None) -> None:
+    """Write the simulated demonstrator's recordings (MCAP glove sessions, robot replays,
+    TwinTac calibrations) into <data>/recordings, ground truth into <data>/groundtruth."""
+    from touch2robot.config import load_profile
+    from touch2robot.synth.generate import plan, write_recording
+    from touch2robot.synth.ratings import write_ratings_csv
+
+    _check_profile(profile)
+    layout = _layout(data)
+    config = load_profile(profile).synth
+    jobs = plan(config)
+    columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
+    with Progress(*columns, console=console) as bar:
+        task = bar.add_task("synthesising", total=len(jobs))
+        for job in jobs:
+            bar.update(task, description=job.stem)
+            write_recording(config, job, layout.recordings, layout.groundtruth)
+            bar.advance(task)
+    write_ratings_csv(layout.recordings / "user_study" / "ratings_SYNTHETIC.csv", seed=config.seed)
+    console.print(f"{len(jobs)} recordings in {layout.recordings}")
+
+
+@app.command()
+def ingest(
+    profile: ProfileOpt = "smoke",
+    data: DataOpt = None,
+    folder: Annotated[Path | None, typer.Option(help="folder of MCAP files (default <data>/recordings)")] = None,
+) -> None:
+    """Ingest MCAP recordings into the Parquet lake and DuckDB catalog (Prefect flow
+    `ingest`, cached per file content): bad files are quarantined with a reason."""
+    _check_profile(profile)
+    layout = _layout(data)
+    from flows.ingest import ingest as ingest_flow
+
+    result = ingest_flow(profile=profile, data=str(layout.root), folder=str(folder.resolve()) if folder else None)
+    console.print(result)
+
+
+@app.command()
+def run(
+    profile: ProfileOpt = "smoke",
+    data: DataOpt = None,
+    synthesize: Annotated[bool, typer.Option("--synth/--no-synth", help="generate demonstrator recordings first")] = True,
+) -> None:
+    """Run every stage that exists, as one Prefect flow (`pipeline`), on a profile."""
+    _check_profile(profile)
+    layout = _layout(data)
+    from flows.pipeline import pipeline
+
+    console.print(pipeline(profile=profile, data=str(layout.root), synthesize=synthesize))
+    console.print(f"catalog: {layout.catalog}\nMLflow:  touch2robot ui --data {layout.root}")
+
+
+@app.command()
+def sql(
+    query: Annotated[str, typer.Argument(help='read-only SQL, e.g. "SELECT region, avg(contact::INT) FROM contacts GROUP BY ALL"')],
+    data: DataOpt = None,
+    csv: Annotated[bool, typer.Option("--csv", help="print CSV instead of a table")] = False,
+    limit: Annotated[int, typer.Option(help="rows to print in table mode")] = 50,
+) -> None:
+    """Query the catalog with SQL (read-only: SELECT/EXPLAIN only; files outside the lake
+    cannot be read or written). Tables: recordings, taxels, hand_joints, hand_keypoints,
+    wrist_pose, object_pose, robot_joint_states, robot_joint_targets, twintac, fsr,
+    time_map, contacts, thresholds (+ later stages' tables)."""
+    from touch2robot.catalog import QueryRefused, query as run_query
+    from touch2robot.settings import DataLayout
+
+    import duckdb
+
+    try:
+        result = run_query(DataLayout.from_env(data), query)
+    except (QueryRefused, FileNotFoundError, duckdb.Error) as e:
+        console.print(f"[red]{type(e).__name__}:[/red] {e}")
+        raise typer.Exit(1) from None
+    if csv:
+        result.to_pandas().to_csv(sys.stdout, index=False)
+        return
+    table = Table(*result.column_names)
+    for row in result.slice(0, limit).to_pylist():
+        table.add_row(*(str(v) for v in row.values()))
+    console.print(table)
+    if result.num_rows > limit:
+        console.print(f"... {result.num_rows - limit} more rows (use --csv or --limit)")
+
+
+@app.command()
+def ui(
+    data: DataOpt = None,
+    port: Annotated[int, typer.Option(help="port for the MLflow UI")] = 5000,
+    start: Annotated[bool, typer.Option("--start", help="start the MLflow UI (else print the command)")] = False,
+) -> None:
+    """The MLflow UI on the local tracking file (and how to open the Prefect UI)."""
+    layout = _layout(data)
+    from touch2robot.tracking import tracking_uri
+
+    uri = tracking_uri(layout)
+    cmd = ["mlflow", "ui", "--backend-store-uri", uri, "--host", "127.0.0.1", "--port", str(port)]
+    if not start:
+        console.print("MLflow UI:  uv run " + " ".join(cmd))
+        console.print(f"Prefect UI: PREFECT_HOME={os.environ['PREFECT_HOME']} uv run prefect server start  (then set PREFECT_API_URL=http://127.0.0.1:4200/api for runs)")
+        return
+    console.print(f"MLflow UI on http://127.0.0.1:{port} (Ctrl-C stops it)")
+    subprocess.run(cmd, check=False)
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()
