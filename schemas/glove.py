@@ -29,6 +29,12 @@ def region_taxels(region: str) -> np.ndarray:
 
 FINGERS: tuple[str, ...] = ("thumb", "index", "middle", "ring", "little")
 
+# Wrist pose convention (/glove/wrist_pose, world frame): origin at the wrist centre, +x
+# towards the fingers (along the middle metacarpal), +y towards the thumb (radial side of a
+# right hand), -z out of the palm (palmar side). These are the LEAP palm frame's axes, so a
+# palm-down hand with fingers along world +x has the identity orientation.
+WRIST_FRAME = "x: to fingers, y: to thumb (radial), -z: palmar; origin at the wrist centre"
+
 # 20 joint angles as the glove SDK reports them, 4 per finger (rad; flexion positive).
 GLOVE_JOINT_NAMES: tuple[str, ...] = (
     "thumb_cmc_abd", "thumb_cmc_flex", "thumb_mcp", "thumb_ip",
