@@ -158,6 +158,73 @@ thresholds = pa.schema(
     ]
 )
 
+# --- Evaluation tables (flow `evaluate`; rebuilt whole on every run) ----------------
+# A key column holding '*' (touch2robot.metrics.ALL) is rolled up over that dimension;
+# undefined ratios (0/0) are NULL.
+contact_metrics = pa.schema(
+    [
+        pa.field("source", pa.string(), nullable=False),  # the evaluated source (sim | real | reconstructed)
+        pa.field("method", pa.string(), nullable=False),
+        pa.field("task", pa.string(), nullable=False),  # or '*'
+        pa.field("region", pa.string(), nullable=False),  # one of ROBOT_REGIONS, or '*'
+        pa.field("reference_source", pa.string(), nullable=False),  # what it is scored against ("human")
+        pa.field("n_sequences", pa.int64(), nullable=False),
+        pa.field("tp", pa.int64(), nullable=False),  # over all compared time-region pairs
+        pa.field("fp", pa.int64(), nullable=False),
+        pa.field("fn", pa.int64(), nullable=False),
+        pa.field("tn", pa.int64(), nullable=False),
+        pa.field("n", pa.int64(), nullable=False),  # tp + fp + fn + tn
+        pa.field("precision", pa.float64()),
+        pa.field("recall", pa.float64()),
+        pa.field("f1", pa.float64()),
+        pa.field("fpr", pa.float64()),
+    ]
+)
+
+onset_errors = pa.schema(
+    [
+        pa.field("source", pa.string(), nullable=False),
+        pa.field("method", pa.string(), nullable=False),
+        pa.field("task", pa.string(), nullable=False),  # or '*'
+        pa.field("sequence_id", pa.string(), nullable=False),  # evaluated sequence; '*' on summary rows
+        pa.field("region", pa.string(), nullable=False),  # or '*'
+        pa.field("subject", pa.string(), nullable=False),  # '*' on summary rows
+        pa.field("reference_id", pa.string(), nullable=False),  # '*' on summary rows
+        pa.field("reference_source", pa.string(), nullable=False),
+        pa.field("t_ref_onset", pa.float64()),  # pair rows: reference onset (s, reference clock); NULL if none
+        pa.field("t_eval_onset", pa.float64()),  # pair rows: evaluated onset on the reference clock; NULL if none
+        pa.field("error_ms", pa.float64()),  # pair: |t_eval - t_ref| in ms; summary: E over its valid pairs
+        pa.field("valid", pa.bool_()),  # pair rows: an onset on both sides; NULL on summary rows
+        pa.field("via_time_map", pa.bool_()),  # pair rows: evaluated times mapped by the recorded time map
+        pa.field("n_pairs", pa.int64(), nullable=False),  # trajectory-region pairs summarised (1 on a pair row)
+        pa.field("n", pa.int64(), nullable=False),  # N: valid pairs
+        pa.field("n_missing_reference", pa.int64(), nullable=False),
+        pa.field("n_missing_evaluated", pa.int64(), nullable=False),
+        pa.field("n_missing_both", pa.int64(), nullable=False),
+    ]
+)
+
+user_study = pa.schema(
+    [
+        pa.field("ratings_file", pa.string(), nullable=False),
+        pa.field("ratings_sha256", pa.string(), nullable=False),
+        pa.field("question", pa.string(), nullable=False),
+        pa.field("n", pa.int64(), nullable=False),  # paired participants
+        pa.field("n_zero", pa.int64(), nullable=False),  # zero differences (dropped by zero_method "wilcox")
+        pa.field("median_visual_feedback", pa.float64()),
+        pa.field("iqr_visual_feedback", pa.float64()),
+        pa.field("median_touch2robot", pa.float64()),
+        pa.field("iqr_touch2robot", pa.float64()),
+        pa.field("statistic", pa.float64()),  # two-sided Wilcoxon signed-rank min(R+, R-)
+        pa.field("p", pa.float64()),
+        pa.field("p_holm", pa.float64()),  # Holm-adjusted across the questions
+        pa.field("zero_method", pa.string(), nullable=False),  # scipy.stats.wilcoxon settings used
+        pa.field("method", pa.string(), nullable=False),
+        pa.field("correction", pa.bool_(), nullable=False),
+        pa.field("synthetic", pa.bool_(), nullable=False),  # SYNTHETIC example ratings, not participants
+    ]
+)
+
 SCHEMAS: dict[str, pa.Schema] = {
     "recordings": recordings,
     "taxels": taxels,
@@ -172,6 +239,9 @@ SCHEMAS: dict[str, pa.Schema] = {
     "time_map": time_map,
     "contacts": contacts,
     "thresholds": thresholds,
+    "contact_metrics": contact_metrics,
+    "onset_errors": onset_errors,
+    "user_study": user_study,
 }
 
 # Hive partition columns per table (directory levels under lake/<table>/).

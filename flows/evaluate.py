@@ -1,0 +1,54 @@
+"""Flow `evaluate`: every evaluated contact source vs the human reference, and the user study
+-> lake tables contact_metrics / onset_errors / user_study, MLflow runs, Prefect artefacts."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from prefect import flow, unmapped
+from prefect.task_runners import ThreadPoolTaskRunner
+
+from tasks.common import file_digest, stored
+from tasks.evaluate import evaluate_ratings, evaluate_source, log_evaluation, log_user_study, publish_artefacts, store_table
+from tasks.ingest import refresh_catalog
+from touch2robot import tracking
+from touch2robot.evaluate import REFERENCE_SOURCE, evaluated_sources, folder_digest, ratings_files, source_folders
+from touch2robot.metrics import ALL
+from touch2robot.settings import DataLayout
+
+
+@flow(name="evaluate", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=True)
+def evaluate(profile: str = "smoke", data: str | None = None, ratings: str | None = None, reference: str = REFERENCE_SOURCE) -> dict:
+    """Score every contact source in the lake other than ``reference`` (all its methods and tasks)
+    and the user-study ratings (``ratings``: a CSV or a folder of them, default
+    ``<data>/recordings/user_study``); rewrite the evaluation tables, refresh the catalog, log
+    MLflow runs. ``profile`` labels the runs."""
+    layout = DataLayout.from_env(data)
+    lake = str(layout.lake)
+    sources = evaluated_sources(layout.lake, reference)
+    digests = [folder_digest(source_folders(layout.lake, s, reference)) for s in sources]
+    per_source = [f.result() for f in stored(evaluate_source, layout.results).map(unmapped(lake), sources, unmapped(reference), digests)]
+    paths = [str(p) for p in ratings_files(Path(ratings) if ratings else layout.recordings / "user_study")]
+    shas = [file_digest(p) for p in paths]
+    studies = [f.result() for f in stored(evaluate_ratings, layout.results).map(paths, shas)]
+
+    metrics = [r for s in per_source for r in s["contact_metrics"]]
+    onsets = [r for s in per_source for r in s["onset_errors"]]
+    store_table(lake, "contact_metrics", metrics, ["source", "method"])
+    store_table(lake, "onset_errors", onsets, ["source", "method"])
+    store_table(lake, "user_study", [r for s in studies for r in s["rows"]], ["ratings_file"])
+    refresh_catalog(str(layout.root))
+
+    uri = tracking.tracking_uri(layout)
+    summaries = [r for r in onsets if r["sequence_id"] == ALL]
+    # a copy: the task's (possibly cached) result object is not ours to extend
+    runs = dict(stored(log_evaluation, layout.results)(
+        str(layout.root), profile, reference, metrics, summaries, folder_digest([layout.lake / "contacts"]), uri
+    ))
+    for path, sha, study in zip(paths, shas, studies, strict=True):
+        if study["rows"]:
+            runs[f"user-study-{Path(path).stem}"] = stored(log_user_study, layout.results)(str(layout.root), profile, path, sha, study["rows"], uri)
+    publish_artefacts(profile, metrics, summaries, studies, runs)
+    overall = {f"{r['source']}/{r['method']}": r["f1"] for r in metrics if r["task"] == ALL and r["region"] == ALL}
+    print(f"evaluate: sources {sources}, overall F1 {overall}, {len(studies)} ratings file(s) -> {layout.catalog}")
+    return {"sources": sources, "f1": overall, "ratings": [Path(p).name for p in paths], "runs": runs}

@@ -1,0 +1,212 @@
+"""Tasks of the evaluation: contact metrics and onset errors per evaluated source, user-study
+statistics per ratings file, lake writes, MLflow runs with figures, Prefect artefacts."""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import pandas as pd
+import pyarrow as pa
+from prefect import get_run_logger, task
+from prefect.artifacts import create_markdown_artifact, create_table_artifact
+
+from schemas.tables import SCHEMAS
+from tasks.common import cache_policy
+from touch2robot import evaluate as ev, tracking
+from touch2robot.metrics import ALL
+from touch2robot.settings import DataLayout
+
+_LIBRARY = ("touch2robot.evaluate", "touch2robot.metrics", "touch2robot.stats", "touch2robot.lake")
+
+# Timelines drawn per (source, method, task) run: enough to see the agreement, few enough
+# that the paper profile's hundreds of rollouts do not flood the artefact store.
+TIMELINES_PER_RUN = 2
+
+# The metrics every (source, task, method) run logs, NaN where undefined, so that the MLflow
+# UI can compare every run on the same columns.
+RUN_METRICS = ("precision", "recall", "f1", "fpr", "onset_error_ms", "onset_pairs", "tp", "fp", "fn", "tn",
+               "n_sequences", "onset_missing_reference", "onset_missing_evaluated")  # fmt: skip
+
+
+def _records(frame: pd.DataFrame, table: str) -> list[dict]:
+    """Rows as plain dicts typed by the table's schema (NaN -> None): exact, picklable, hashable."""
+    return pa.Table.from_pandas(frame, schema=SCHEMAS[table], preserve_index=False).to_pylist()
+
+
+def _frame(records: list[dict], table: str) -> pd.DataFrame:
+    """The inverse of :func:`_records` (None -> NaN in float columns), columns in schema order."""
+    return pa.Table.from_pylist(records, schema=SCHEMAS[table]).to_pandas()
+
+
+@task(cache_policy=cache_policy(*_LIBRARY), persist_result=True, task_run_name="evaluate-{source}")
+def evaluate_source(lake: str, source: str, reference: str, lake_digest: str) -> dict[str, list[dict]]:
+    """Contact metrics and onset errors of one evaluated source vs the reference.
+
+    ``lake_digest`` (:func:`touch2robot.evaluate.folder_digest` of the folders it reads) keys the
+    cache on the data: a path alone would serve stale scores after the lake changed.
+    """
+    contacts = ev.read_contacts(Path(lake), [reference, source])
+    metrics = ev.contact_metrics_table(contacts, source, reference)
+    onsets = ev.onset_errors_table(contacts, ev.read_time_map(Path(lake)), source, reference)
+    return {"contact_metrics": _records(metrics, "contact_metrics"), "onset_errors": _records(onsets, "onset_errors")}
+
+
+@task(cache_policy=cache_policy(*_LIBRARY), persist_result=True, task_run_name="user-study-{ratings_sha256:.12}")
+def evaluate_ratings(path: str, ratings_sha256: str) -> dict:
+    """User-study statistics of one ratings CSV (keyed by its content hash).
+
+    Ratings the statistics reject are reported with the reason instead of failing the whole
+    evaluation (like a quarantined recording): ``rows`` is then empty and ``error`` says why.
+    """
+    name = Path(path).name
+    ratings = pd.read_csv(path)
+    synthetic = ev.is_synthetic(ratings, name)
+    try:
+        rows = ev.user_study_table(ratings, name, ratings_sha256, synthetic)
+    except ValueError as e:
+        get_run_logger().warning("user-study ratings %s skipped: %s", path, e)
+        return {"path": path, "synthetic": synthetic, "rows": [], "error": str(e)}
+    return {"path": path, "synthetic": synthetic, "rows": _records(rows, "user_study"), "error": ""}
+
+
+@task
+def store_table(lake: str, table: str, records: list[dict], keys: list[str]) -> list[str]:
+    """Replace an evaluation table's files with ``records`` (one file per ``keys`` group).
+
+    Not cached on purpose: it is cheap, and running it every time keeps the lake equal to the
+    current results even if someone deleted files behind a cached computation.
+    """
+    return ev.replace_table(Path(lake), table, _frame(records, table), keys)
+
+
+def _summary(metrics: pd.DataFrame, onsets: pd.DataFrame) -> pd.DataFrame:
+    """One row per (source, method, task incl. '*'): overall contact scores + onset summary."""
+    keys = ["source", "method", "task"]
+    m = metrics[metrics["region"] == ALL][[*keys, "n_sequences", "tp", "fp", "fn", "tn", "precision", "recall", "f1", "fpr"]]
+    o = onsets[(onsets["sequence_id"] == ALL) & (onsets["region"] == ALL)]
+    o = o[[*keys, "error_ms", "n", "n_missing_reference", "n_missing_evaluated"]].rename(
+        columns={"error_ms": "onset_error_ms", "n": "onset_pairs",
+                 "n_missing_reference": "onset_missing_reference", "n_missing_evaluated": "onset_missing_evaluated"}
+    )  # fmt: skip
+    return m.merge(o, on=keys, how="outer").sort_values(keys, ignore_index=True)
+
+
+def _timelines(lake: Path, reference: str, source: str, method: str, task_name: str, out: Path) -> list[Path]:
+    """Timeline figures of the first few sequences of (source, method, task) vs their references."""
+    contacts = ev.read_contacts(lake, [reference, source], task=task_name)
+    mine = contacts[(contacts["source"] == source) & (contacts["method"] == method)]
+    ref = contacts[contacts["source"] == reference]
+    paths = []
+    for seq in sorted(mine["sequence_id"].unique())[:TIMELINES_PER_RUN]:
+        rows = mine[mine["sequence_id"] == seq]
+        ref_id = rows["reference_id"].iloc[0]
+        title = f"{task_name}: {source}/{method} {seq} (lower) vs {reference} {ref_id} (upper)"
+        png = out / f"timeline_{ev.file_id(source, method, task_name, seq)}.png"
+        paths.append(ev.plot_timeline(ref[ref["sequence_id"] == ref_id], rows, title, png))
+    return paths
+
+
+@task(cache_policy=cache_policy(*_LIBRARY, "touch2robot.tracking"), persist_result=True)
+def log_evaluation(
+    data: str, profile: str, reference: str, contact_metrics: list[dict], onset_summaries: list[dict],
+    lake_digest: str, tracking_uri: str,
+) -> dict[str, str]:  # fmt: skip
+    """One MLflow run per (source, task, method) in the "evaluate" experiment, plus a summary run.
+
+    Each run has params source/task/method (task "*" = all tasks) and metrics precision, recall,
+    f1, fpr, onset_error_ms, onset_pairs (N), the counts and per-region F1, and (per task) the
+    contact timelines of a few sequences vs their reference. The summary run holds the
+    metrics-by-method bar chart and the tables as CSV. Cached on the figures, the lake state
+    (``lake_digest``: the timelines read it) and ``tracking_uri`` (another MLflow store is new
+    work), so a re-run on unchanged data adds no duplicate runs.
+
+    Returns:
+        MLflow run id per run name.
+    """
+    import mlflow
+
+    layout = DataLayout.from_env(data)
+    metrics = _frame(contact_metrics, "contact_metrics")
+    onsets = _frame(onset_summaries, "onset_errors")
+    summary = _summary(metrics, onsets)
+    runs: dict[str, str] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp)
+        for row in summary.itertuples(index=False):
+            name = f"{row.source}/{row.method}/{'all' if row.task == ALL else row.task}"
+            tags = {"kind": "method", "profile": profile, "reference_source": reference}
+            with tracking.stage_run(layout, "evaluate", name, tags) as run:
+                mlflow.log_params({"source": row.source, "task": row.task, "method": row.method})
+                values = {k: float(getattr(row, k)) for k in RUN_METRICS}
+                regional = metrics[(metrics["source"] == row.source) & (metrics["method"] == row.method)
+                                   & (metrics["task"] == row.task) & (metrics["region"] != ALL)]  # fmt: skip
+                values |= {f"f1_{r.region}": float(r.f1) for r in regional.itertuples(index=False)}
+                mlflow.log_metrics(values)
+                if row.task != ALL:
+                    for png in _timelines(layout.lake, reference, row.source, row.method, row.task, out):
+                        mlflow.log_artifact(str(png), "contact_timelines")
+                runs[name] = run.info.run_id
+        with tracking.stage_run(layout, "evaluate", f"summary-{profile}", {"kind": "summary", "profile": profile}) as run:
+            mlflow.log_artifact(str(ev.plot_metrics_by_method(metrics, onsets, out / "metrics_by_method.png")))
+            for name, frame in (("summary", summary), ("contact_metrics", metrics), ("onset_summaries", onsets)):
+                frame.to_csv(out / f"{name}.csv", index=False)
+                mlflow.log_artifact(str(out / f"{name}.csv"))
+            runs[f"summary-{profile}"] = run.info.run_id
+    return runs
+
+
+@task(cache_policy=cache_policy(*_LIBRARY, "touch2robot.tracking"), persist_result=True,
+      task_run_name="log-user-study-{ratings_sha256:.12}")  # fmt: skip
+def log_user_study(data: str, profile: str, path: str, ratings_sha256: str, rows: list[dict], tracking_uri: str) -> str:
+    """One MLflow run for a ratings file's user study: per-question metrics, the table, a box plot.
+
+    SYNTHETIC ratings are labelled by the tag ``synthetic=true`` and in the run name, so the
+    example numbers cannot pass for a study. Cached on the file's content hash and the store.
+    """
+    import mlflow
+
+    layout = DataLayout.from_env(data)
+    table = _frame(rows, "user_study")
+    synthetic = bool(table["synthetic"].any())
+    name = f"user-study-{Path(path).stem}" + (" (SYNTHETIC)" if synthetic else "")
+    tags = {"kind": "user_study", "profile": profile, "synthetic": str(synthetic).lower()}
+    with tracking.stage_run(layout, "evaluate", name, tags) as run, tempfile.TemporaryDirectory() as tmp:
+        first = table.iloc[0]
+        mlflow.log_params({"ratings_file": Path(path).name, "ratings_sha256": ratings_sha256, "zero_method": first["zero_method"],
+                           "wilcoxon_method": first["method"], "correction": bool(first["correction"]), "n": int(first["n"])})  # fmt: skip
+        for r in table.itertuples(index=False):
+            mlflow.log_metrics({f"{key}_{r.question}": float(getattr(r, key)) for key in
+                                ("p", "p_holm", "statistic", "median_visual_feedback", "median_touch2robot",
+                                 "iqr_visual_feedback", "iqr_touch2robot")})  # fmt: skip
+        table.to_csv(Path(tmp) / "user_study.csv", index=False)
+        mlflow.log_artifact(str(Path(tmp) / "user_study.csv"))
+        title = f"{Path(path).name}{' — SYNTHETIC ratings, not a study' if synthetic else ''}"
+        mlflow.log_artifact(str(ev.plot_ratings(pd.read_csv(path), title, Path(tmp) / "ratings.png")))
+        return run.info.run_id
+
+
+@task
+def publish_artefacts(profile: str, contact_metrics: list[dict], onset_summaries: list[dict], studies: list[dict], runs: dict[str, str]) -> None:
+    """Prefect artefacts of the flow run: the metrics table, the user-study table, a summary."""
+    summary = _summary(_frame(contact_metrics, "contact_metrics"), _frame(onset_summaries, "onset_errors"))
+    shown = summary[["source", "method", "task", "n_sequences", "precision", "recall", "f1", "fpr", "onset_error_ms", "onset_pairs"]]
+    create_table_artifact(
+        key="evaluate-contact-metrics",
+        table=shown.round(4).astype(object).where(shown.notna(), None).to_dict(orient="records"),
+        description=f"Contact fidelity and onset error per source/method/task vs the human reference ({profile}; task '*' = all)",
+    )
+    study_rows = [r for s in studies for r in s["rows"]]
+    if study_rows:
+        create_table_artifact(
+            key="evaluate-user-study",
+            table=[{k: r[k] for k in ("ratings_file", "synthetic", "question", "n", "median_visual_feedback",
+                                      "median_touch2robot", "statistic", "p", "p_holm")} for r in study_rows],  # fmt: skip
+            description="Paired two-sided Wilcoxon signed-rank per question, Holm-corrected (synthetic = example ratings)",
+        )
+    lines = [f"# Evaluate ({profile})", "", f"{len(runs)} MLflow runs in experiment `touch2robot/evaluate`.", ""]
+    for s in studies:
+        label = " (SYNTHETIC)" if s["synthetic"] else ""
+        status = f"skipped: {s['error']}" if s["error"] else f"{len(s['rows'])} questions"
+        lines.append(f"- ratings `{Path(s['path']).name}`{label}: {status}")
+    create_markdown_artifact(key="evaluate-summary", markdown="\n".join(lines) + "\n")
