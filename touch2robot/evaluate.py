@@ -18,6 +18,7 @@ import hashlib
 import re
 from collections.abc import Iterable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -29,6 +30,10 @@ from schemas.tables import PARTITIONS, ROBOT_REGIONS, SCHEMAS
 from touch2robot import lake as lake_io
 from touch2robot.metrics import ALL, COUNT_COLUMNS, contact_counts_long, contact_scores_table, onset_error_ms_long
 from touch2robot.stats import CONDITIONS, QUESTIONS, user_study
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Patch
 
 __all__ = [
     "ALL",
@@ -325,8 +330,9 @@ def replace_table(lake: Path, table: str, rows: pd.DataFrame, keys: Sequence[str
 # --------------------------------------------------------------------------- figures
 
 
-def _figure(width: float, height: float):  # noqa: ANN202 - matplotlib Figure, imported lazily
+def _figure(width: float, height: float) -> Figure:
     # An object-oriented Figure (Agg canvas, no pyplot state): safe in worker threads.
+    # matplotlib is imported only when a figure is drawn: the tables need none of it.
     from matplotlib.figure import Figure
 
     return Figure(figsize=(width, height), layout="constrained")
@@ -354,7 +360,7 @@ def plot_timeline(reference: pd.DataFrame, evaluated: pd.DataFrame, title: str, 
     return path
 
 
-def _patch(color: str, label: str):  # noqa: ANN202 - matplotlib Patch, imported lazily
+def _patch(color: str, label: str) -> Patch:
     from matplotlib.patches import Patch
 
     return Patch(color=color, label=label)
