@@ -51,4 +51,5 @@ def evaluate(profile: str = "smoke", data: str | None = None, ratings: str | Non
     publish_artefacts(profile, metrics, summaries, studies, runs)
     overall = {f"{r['source']}/{r['method']}": r["f1"] for r in metrics if r["task"] == ALL and r["region"] == ALL}
     print(f"evaluate: sources {sources}, overall F1 {overall}, {len(studies)} ratings file(s) -> {layout.catalog}")
-    return {"sources": sources, "f1": overall, "ratings": [Path(p).name for p in paths], "runs": runs}
+    skipped = {Path(s["path"]).name: s["error"] for s in studies if s["error"]}
+    return {"sources": sources, "f1": overall, "ratings": [Path(p).name for p in paths], "ratings_skipped": skipped, "runs": runs}

@@ -60,9 +60,10 @@ def evaluate_ratings(path: str, ratings_sha256: str) -> dict:
     evaluation (like a quarantined recording): ``rows`` is then empty and ``error`` says why.
     """
     name = Path(path).name
-    ratings = pd.read_csv(path)
-    synthetic = ev.is_synthetic(ratings, name)
+    synthetic = ev.is_synthetic(pd.DataFrame(), name)
     try:
+        ratings = pd.read_csv(path)  # pandas' parse errors are ValueErrors too
+        synthetic = ev.is_synthetic(ratings, name)
         rows = ev.user_study_table(ratings, name, ratings_sha256, synthetic)
     except ValueError as e:
         get_run_logger().warning("user-study ratings %s skipped: %s", path, e)

@@ -305,5 +305,9 @@ def test_flow_rerun_replaces_and_follows_the_sources(evaluated: tuple[Path, dict
     assert {"sim/contrack/all", "real/touch2robot/all"} <= set(runs["tags.mlflow.runName"])
 
     shutil.rmtree(lake / "contacts" / "source=sim")
-    evaluate(profile="smoke", data=str(data))
+    # an unpaired ratings file is reported and skipped, like a quarantined recording
+    bad = synthetic_ratings(4).iloc[1:].drop(columns="synthetic")
+    bad.to_csv(data / "recordings" / "user_study" / "ratings_bad.csv", index=False)
+    result = evaluate(profile="smoke", data=str(data))
     assert _counts(data) == counts  # the removed source's rows are gone, not kept stale
+    assert list(result["ratings_skipped"]) == ["ratings_bad.csv"] and "lacks one condition" in result["ratings_skipped"]["ratings_bad.csv"]
