@@ -1,0 +1,128 @@
+"""Prefect task runners built from a profile's ``runner`` section, so that where the
+fan-out runs (threads, processes, a Dask LocalCluster, a lab's Dask scheduler) is
+configuration, not a code edit.
+
+``build_task_runner`` turns a :class:`RunnerConfig` into a runner. ``ProfileTaskRunner``
+is what a flow puts in its decorator: it builds the real runner when the flow run submits
+its first task, from the profile named by the run's ``profile`` parameter, because a
+flow's runner is fixed when it is decorated while the profile is only known per run."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from contextlib import AbstractContextManager, nullcontext
+from typing import Any
+
+from prefect.context import FlowRunContext
+from prefect.futures import PrefectFuture
+from prefect.settings import PREFECT_API_URL, get_current_settings, temporary_settings
+from prefect.task_runners import ProcessPoolTaskRunner, TaskRunner, ThreadPoolTaskRunner
+
+from touch2robot.config import load_profile
+from touch2robot.runner_config import RunnerConfig
+
+
+def build_task_runner(config: RunnerConfig) -> TaskRunner[Any]:
+    """The Prefect task runner a runner section asks for (not started)."""
+    if config.kind == "threads":
+        return ThreadPoolTaskRunner(max_workers=config.max_workers)
+    if config.kind == "processes":
+        return ProcessPoolTaskRunner(max_workers=config.max_workers)
+    try:
+        from prefect_dask import DaskTaskRunner
+    except ImportError as e:  # the optional extra is missing
+        raise ImportError("runner kind 'dask' needs the dask extra: `uv sync --extra dask` (prefect-dask, distributed)") from e
+    if config.dask_address:
+        if not get_current_settings().api.url:
+            # workers on other machines cannot reach this process's ephemeral API server
+            raise RuntimeError(
+                f"runner dask_address={config.dask_address!r} needs a Prefect server that the cluster can reach: "
+                "set PREFECT_API_URL (see infra/README.md)"
+            )
+        return DaskTaskRunner(address=config.dask_address)
+    return DaskTaskRunner(
+        cluster_class="distributed.LocalCluster",
+        cluster_kwargs={
+            "n_workers": config.n_workers,
+            "threads_per_worker": config.threads_per_worker,
+            "processes": True,
+            # scheduler and workers listen on loopback only; no dashboard web server
+            "host": "127.0.0.1",
+            "dashboard_address": None,
+        },
+    )
+
+
+def _share_ephemeral_api() -> AbstractContextManager[Any]:
+    """Settings under which tasks are handed to worker processes.
+
+    Without PREFECT_API_URL a flow process talks to its own ephemeral API server, and
+    the serialized settings that go with each task say "no API URL": every worker
+    process (Dask or process pool) would then start an ephemeral server of its own,
+    about 20 s each on 2 cores, and record its task runs in it. Naming the flow's
+    server for the duration of a submit makes the workers report to it instead."""
+    ctx = FlowRunContext.get()
+    if get_current_settings().api.url or ctx is None or ctx.client is None:
+        return nullcontext()
+    return temporary_settings(updates={PREFECT_API_URL: str(ctx.client.api_url)})
+
+
+class ProfileTaskRunner(TaskRunner[PrefectFuture[Any]]):
+    """A task runner that becomes the one the flow run's profile asks for.
+
+    Put ``task_runner=ProfileTaskRunner()`` in a fan-out flow's decorator: at the first
+    task submitted in a run it reads the run's ``profile`` parameter, loads that
+    profile's ``runner`` section and starts the runner it describes; the runner is shut
+    down with the flow run. ``config`` pins a runner regardless of the profile (tests,
+    notebooks). A run without a ``profile`` parameter gets the default RunnerConfig."""
+
+    def __init__(self, config: RunnerConfig | None = None, parameter: str = "profile") -> None:
+        super().__init__()
+        self._config = config
+        self._parameter = parameter
+        self._inner: TaskRunner[Any] | None = None
+
+    def duplicate(self) -> ProfileTaskRunner:
+        return type(self)(self._config, self._parameter)
+
+    def resolve(self) -> RunnerConfig:
+        """The runner section for the current flow run."""
+        if self._config is not None:
+            return self._config
+        ctx = FlowRunContext.get()
+        profile = (ctx.parameters or {}).get(self._parameter) if ctx is not None else None
+        if profile is None:
+            return RunnerConfig()
+        return load_profile(profile).runner
+
+    @property
+    def inner(self) -> TaskRunner[Any] | None:
+        """The runner actually in use (None until the first task is submitted)."""
+        return self._inner
+
+    def submit(
+        self,
+        task: Any,
+        parameters: dict[str, Any],
+        wait_for: Iterable[PrefectFuture[Any]] | None = None,
+        dependencies: dict[str, set[Any]] | None = None,
+    ) -> PrefectFuture[Any]:
+        if not self._started:
+            raise RuntimeError("The task runner must be started before submitting work.")
+        if self._inner is None:
+            # started lazily: the flow run's parameters exist only once the run is under way
+            runner = build_task_runner(self.resolve())
+            self.logger.info("fan-out on %s", type(runner).__name__)
+            self._inner = runner.__enter__()
+        if isinstance(self._inner, ThreadPoolTaskRunner):
+            return self._inner.submit(task, parameters, wait_for, dependencies)
+        with _share_ephemeral_api():
+            return self._inner.submit(task, parameters, wait_for, dependencies)
+
+    def __exit__(self, exc_type: Any, exc_value: Any, traceback: Any) -> None:
+        inner, self._inner = self._inner, None
+        try:
+            if inner is not None:
+                inner.__exit__(exc_type, exc_value, traceback)
+        finally:
+            super().__exit__(exc_type, exc_value, traceback)

@@ -1,0 +1,181 @@
+"""The fan-out task runner is chosen by configuration (a profile's ``runner`` section).
+
+Anything that imports Prefect runs in a subprocess with its own data folder and Prefect
+home: Prefect reads its settings once per process, so an in-process flow run would
+leave its environment behind for the rest of the test session."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+from pydantic import ValidationError
+
+from touch2robot.runner_config import RunnerConfig
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# Run in a subprocess: builds each kind of runner, then runs tiny flows whose tasks
+# report where they ran, and prints one JSON object.
+PROBE = textwrap.dedent(
+    '''
+    import json, os, sys
+    import flows  # configures the environment before Prefect loads its settings
+    from prefect import flow, task
+    from prefect.context import FlowRunContext
+    from prefect.settings import PREFECT_API_URL, temporary_settings
+    from tasks.runners import ProfileTaskRunner, build_task_runner
+    from touch2robot.runner_config import RunnerConfig
+
+    @task
+    def where(i: int) -> dict:
+        import distributed
+        worker = distributed.get_worker()
+        return {"i": i, "pid": os.getpid(), "worker": worker.address}
+
+    @flow(task_runner=ProfileTaskRunner(RunnerConfig(kind="dask", n_workers=2)))
+    def fan_out(n: int) -> dict:
+        results = [f.result() for f in where.map(range(n))]
+        runner = FlowRunContext.get().task_runner.inner
+        workers = sorted(runner.client.scheduler_info()["workers"])
+        return {"results": results, "cluster_workers": workers, "runner": type(runner).__name__}
+
+    @task
+    def noop() -> int:
+        return os.getpid()
+
+    @flow(task_runner=ProfileTaskRunner())
+    def by_profile(profile: str) -> dict:
+        pid = noop.submit().result()
+        runner = FlowRunContext.get().task_runner.inner
+        return {"runner": type(runner).__name__, "max_workers": getattr(runner, "_max_workers", None), "pid": pid}
+
+    def main() -> None:
+        out = {"flow_pid": os.getpid()}
+        threads = build_task_runner(RunnerConfig(kind="threads", max_workers=3))
+        processes = build_task_runner(RunnerConfig(kind="processes", max_workers=2))
+        local = build_task_runner(RunnerConfig(kind="dask", n_workers=3))
+        out["built"] = {
+            "threads": [type(threads).__name__, threads._max_workers],
+            "processes": [type(processes).__name__, processes._max_workers],
+            "dask_local": [type(local).__name__, local.cluster_kwargs],
+        }
+        try:
+            build_task_runner(RunnerConfig(kind="dask", dask_address="tcp://scheduler:8786"))
+            out["remote_without_server"] = "built"
+        except RuntimeError as e:
+            out["remote_without_server"] = str(e)
+        with temporary_settings(updates={PREFECT_API_URL: "http://127.0.0.1:4200/api"}):
+            remote = build_task_runner(RunnerConfig(kind="dask", dask_address="tcp://scheduler:8786"))
+            out["remote"] = [type(remote).__name__, remote.address]
+        out["dask"] = fan_out(6)
+        profile = sys.argv[1]
+        out["by_profile"] = by_profile(profile) if profile else None
+        print("RESULT " + json.dumps(out))
+
+    # Dask starts its workers with the spawn method, which re-imports this script
+    if __name__ == "__main__":
+        main()
+    '''
+)
+
+
+def profile_runner_wired() -> bool:
+    """Whether the profile model has its ``runner`` section yet (wired in touch2robot/config.py)."""
+    from touch2robot.config import Profile
+
+    return "runner" in Profile.model_fields
+
+
+@pytest.fixture(scope="module")
+def probe(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """Run PROBE once (about a minute: Prefect's embedded API and a LocalCluster start)."""
+    tmp = tmp_path_factory.mktemp("runners")
+    script = tmp / "probe.py"
+    script.write_text(PROBE)
+    profile = ""
+    if profile_runner_wired():
+        profile = str(tmp / "threads3.yaml")
+        Path(profile).write_text("name: threads3\nrunner:\n  kind: threads\n  max_workers: 3\n")
+    env = {
+        **os.environ,
+        "TOUCH2ROBOT_DATA": str(tmp / "data"),
+        "PREFECT_HOME": str(tmp / "data" / "prefect"),
+        "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
+        "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "120",
+    }
+    env.pop("PREFECT_API_URL", None)  # the embedded API: the case where workers must be told where it is
+    proc = subprocess.Popen(
+        [sys.executable, str(script), profile], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+        text=True, start_new_session=True,
+    )  # fmt: skip
+    try:
+        output, _ = proc.communicate(timeout=400)
+    finally:
+        # the flow process, its API server and any Dask worker left behind share the group
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait()
+    lines = [line for line in output.splitlines() if line.startswith("RESULT ")]
+    assert proc.returncode == 0 and lines, output[-6000:]
+    result = json.loads(lines[-1][len("RESULT ") :])
+    result["log"] = output
+    return result
+
+
+def test_runner_config_defaults_and_validation() -> None:
+    assert RunnerConfig() == RunnerConfig(kind="threads", max_workers=None, dask_address=None, n_workers=2)
+    assert RunnerConfig.model_validate({"kind": "dask", "dask_address": "tcp://10.0.0.5:8786"}).dask_address == "tcp://10.0.0.5:8786"
+    with pytest.raises(ValidationError, match="only used with kind 'dask'"):
+        RunnerConfig(kind="threads", dask_address="tcp://scheduler:8786")
+    with pytest.raises(ValidationError, match="needs a scheme"):
+        RunnerConfig(kind="dask", dask_address="scheduler:8786")
+    with pytest.raises(ValidationError):
+        RunnerConfig.model_validate({"kind": "ray"})
+    with pytest.raises(ValidationError):
+        RunnerConfig.model_validate({"kind": "threads", "workers": 2})  # unknown keys are errors
+    with pytest.raises(ValidationError):
+        RunnerConfig(n_workers=0)
+
+
+@pytest.mark.slow
+def test_build_task_runner_per_kind(probe: dict) -> None:
+    built = probe["built"]
+    assert built["threads"] == ["ThreadPoolTaskRunner", 3]
+    assert built["processes"] == ["ProcessPoolTaskRunner", 2]
+    name, kwargs = built["dask_local"]
+    assert name == "DaskTaskRunner"
+    assert kwargs["n_workers"] == 3 and kwargs["processes"] is True
+    assert kwargs["host"] == "127.0.0.1" and kwargs["dashboard_address"] is None  # nothing listens beyond loopback
+    assert probe["remote"] == ["DaskTaskRunner", "tcp://scheduler:8786"]
+    assert "PREFECT_API_URL" in probe["remote_without_server"]  # a cluster cannot reach an embedded API
+
+
+@pytest.mark.slow
+def test_fan_out_runs_on_dask_workers(probe: dict) -> None:
+    dask = probe["dask"]
+    assert dask["runner"] == "DaskTaskRunner"
+    results = dask["results"]
+    assert sorted(r["i"] for r in results) == list(range(6))
+    assert len(dask["cluster_workers"]) == 2
+    assert {r["worker"] for r in results} <= set(dask["cluster_workers"])
+    assert all(r["pid"] != probe["flow_pid"] for r in results)  # not in the flow's process
+    # the workers reported to the flow's embedded API instead of each starting its own
+    assert probe["log"].count("Starting temporary server") == 1
+
+
+@pytest.mark.slow
+def test_profile_names_the_runner(probe: dict) -> None:
+    if probe["by_profile"] is None:
+        pytest.skip("touch2robot.config.Profile has no `runner` section yet (see infra/README.md, 'Scale-out')")
+    assert probe["by_profile"]["runner"] == "ThreadPoolTaskRunner"
+    assert probe["by_profile"]["max_workers"] == 3
+    assert probe["by_profile"]["pid"] == probe["flow_pid"]
