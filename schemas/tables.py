@@ -225,6 +225,25 @@ user_study = pa.schema(
     ]
 )
 
+# --- Kinematic retargeting (flow `retarget`; one file per glove recording) -----------
+retargeted = pa.schema(
+    [
+        pa.field("recording_id", pa.string(), nullable=False),  # the glove recording
+        pa.field("t", pa.float64(), nullable=False),  # the hand-motion frame's time (s since the recording's first message)
+        pa.field("position", pa.list_(pa.float32(), 16), nullable=False),  # LEAP joints (rad), LEAP_JOINT_NAMES order
+        pa.field("status", pa.string(), nullable=False),  # ok | solver_error | non_finite | residual | invalid_input (not ok: previous solution held)
+        pa.field("residual", pa.list_(pa.float32(), 4), nullable=False),  # fingertip to scaled human target (m): thumb, index, middle, ring
+        # robot wrist pose in the world: the LEAP URDF's `base` / MJCF `wrist` body (the mocap target)
+        pa.field("px", pa.float64()),
+        pa.field("py", pa.float64()),
+        pa.field("pz", pa.float64()),
+        pa.field("qw", pa.float64()),
+        pa.field("qx", pa.float64()),
+        pa.field("qy", pa.float64()),
+        pa.field("qz", pa.float64()),
+    ]
+)
+
 SCHEMAS: dict[str, pa.Schema] = {
     "recordings": recordings,
     "taxels": taxels,
@@ -242,6 +261,7 @@ SCHEMAS: dict[str, pa.Schema] = {
     "contact_metrics": contact_metrics,
     "onset_errors": onset_errors,
     "user_study": user_study,
+    "retargeted": retargeted,
 }
 
 # Hive partition columns per table (directory levels under lake/<table>/).
