@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from prefect import flow
 
+from flows.evaluate import evaluate
 from flows.ingest import ingest
 from flows.synth import synth
 
@@ -11,7 +12,8 @@ from flows.synth import synth
 @flow(name="pipeline", log_prints=True)
 def pipeline(profile: str = "smoke", data: str | None = None, synthesize: bool = True) -> dict:
     """Simulated demonstrator (unless ``synthesize`` is false: bring your own recordings
-    in ``<data>/recordings``) -> ingest and contacts."""
+    in ``<data>/recordings``) -> ingest and contacts -> evaluation."""
     if synthesize:
         synth(profile=profile, data=data)
-    return {"ingest": ingest(profile=profile, data=data)}
+    ingested = ingest(profile=profile, data=data)
+    return {"ingest": ingested, "evaluate": evaluate(profile=profile, data=data)}

@@ -79,6 +79,21 @@ def ingest(
 
 
 @app.command()
+def evaluate(
+    profile: ProfileOpt = "smoke",
+    data: DataOpt = None,
+    ratings: Annotated[Path | None, typer.Option(help="user-study ratings CSV or folder (default <data>/recordings/user_study)")] = None,
+) -> None:
+    """Score every contact source against the human preference (precision/recall/F1/FPR,
+    onset error) and the user study; tables contact_metrics, onset_errors, user_study."""
+    _check_profile(profile)
+    layout = _layout(data)
+    from flows.evaluate import evaluate as evaluate_flow
+
+    console.print(evaluate_flow(profile=profile, data=str(layout.root), ratings=str(ratings.resolve()) if ratings else None))
+
+
+@app.command()
 def run(
     profile: ProfileOpt = "smoke",
     data: DataOpt = None,
