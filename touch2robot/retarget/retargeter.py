@@ -307,6 +307,6 @@ def retarget_sequence(
     reuse its loaded model across recordings (it is reset first; its config is the one used)."""
     if retargeter is not None and config is not None and retargeter.config != config:
         raise ValueError("retarget_sequence: the retargeter was built with a different config")
-    rt = retargeter or Retargeter(config or LEAP_DEFAULT)
-    motion = validate_hand_motion(recording_id, t, keypoints, wrist_pose, rt.config.max_gap_s)
-    return retarget_motion(motion, rt.config, rt)
+    config = retargeter.config if retargeter is not None else config or LEAP_DEFAULT
+    motion = validate_hand_motion(recording_id, t, keypoints, wrist_pose, config.max_gap_s)  # before loading the model
+    return retarget_motion(motion, config, retargeter)
