@@ -15,20 +15,20 @@ import os
 for _var in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
     os.environ[_var] = "1"
 
-import argparse  # noqa: E402
-import tempfile  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import tempfile
+import time
+from pathlib import Path
 
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
+import numpy as np
+import torch
 
-from touch2robot.ingest import ingest_file  # noqa: E402
-from touch2robot.retarget import LEAP_DEFAULT  # noqa: E402
-from touch2robot.retarget.lake import load_hand_motion  # noqa: E402
-from touch2robot.retarget.retargeter import Retargeter, retarget_motion  # noqa: E402
-from touch2robot.synth.config import SynthConfig  # noqa: E402
-from touch2robot.synth.generate import RecordingJob, write_recording  # noqa: E402
+from touch2robot.ingest import ingest_file
+from touch2robot.retarget import LEAP_DEFAULT
+from touch2robot.retarget.lake import load_hand_motion
+from touch2robot.retarget.retargeter import Retargeter, retarget_motion
+from touch2robot.synth.config import SynthConfig
+from touch2robot.synth.generate import RecordingJob, write_recording
 
 
 def main() -> None:

@@ -5,21 +5,26 @@ from __future__ import annotations
 
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
 from tasks.common import cache_policy
+from touch2robot import lake as lake_io
 from touch2robot import tracking
 from touch2robot.retarget import RetargetConfig
 from touch2robot.settings import DataLayout
+
+if TYPE_CHECKING:  # the retargeter imports torch: loaded only when a task runs
+    from touch2robot.retarget.retargeter import RetargetResult
 
 # Residual columns in the order of the robot fingertips (regions T1..T4).
 TIP_NAMES = ("thumb", "index", "middle", "ring")
 
 
-def _summary(result, config: RetargetConfig) -> dict:
+def _summary(result: RetargetResult, config: RetargetConfig) -> dict:
     """The figures of one result that the MLflow run and the flow's artefact show."""
     from touch2robot.retarget.retargeter import STATUS_NAMES
 
@@ -47,7 +52,6 @@ def retarget_recording(recording: dict, config: RetargetConfig, data: str, profi
     (stage "retarget") and, if ``render``, a drawing of human vs robot over a few frames. Hand
     motion that cannot be retargeted is reported (``error``) and leaves no rows, like a
     quarantined file."""
-    from touch2robot import lake as lake_io
     from touch2robot.retarget.lake import load_hand_motion, write_result
     from touch2robot.retarget.retargeter import HandMotionError, Retargeter, retarget_motion
 
@@ -101,7 +105,11 @@ def report_retarget(profile: str, results: list[dict]) -> dict:
     create_table_artifact(
         key="retarget-recordings",
         table=[
-            {k: (round(v, 2) if isinstance(v, float) else v) for k, v in r.items() if k in ("file", "task", "frames", "failed_frames", "residual_mean_mm", "residual_p95_mm", "max_joint_step_rad", "solve_ms_mean", "error")}
+            {
+                k: (round(v, 2) if isinstance(v, float) else v)
+                for k, v in r.items()
+                if k in ("file", "task", "frames", "failed_frames", "residual_mean_mm", "residual_p95_mm", "max_joint_step_rad", "solve_ms_mean", "error")
+            }
             for r in results
         ],
         description="Kinematic retargeting per glove recording",

@@ -104,7 +104,7 @@ def test_robot_fingertips_follow_the_clean_human_motion(demos: dict, task: str) 
     retargeter never sees) give the true fingertips; the robot's, scaled back, stay close."""
     from touch2robot.synth.hand import HumanHand
 
-    motion, result, truth_path = demos[task]
+    _, result, truth_path = demos[task]
     truth = pq.read_table(truth_path).to_pandas()
     scale = float(pq.read_schema(truth_path.with_name(truth_path.name.replace(".motion", ""))).metadata[b"hand_scale"])
     np.testing.assert_allclose(truth["t"].to_numpy(), result.t, atol=1e-6)
@@ -134,6 +134,29 @@ def test_robot_wrist_pose_puts_the_palm_on_the_human_wrist_frame(demos: dict) ->
     assert rows.num_rows == len(result.t) and set(rows["status"].to_pylist()) == {"ok"}
 
 
+def test_the_simulated_hand_reproduces_the_retargeted_fingertips(demos: dict, retargeter: Retargeter) -> None:
+    """What the teachers will do with a ``retargeted`` row: put the MJCF hand's ``wrist`` body at
+    the row's pose and its joints at the row's angles; the fingertip sites land where Pinocchio
+    put the URDF's fingertips (world frame)."""
+    import mujoco
+
+    from touch2robot.leap import hand_mjcf
+
+    _, result, _ = demos["rotate"]
+    model = mujoco.MjModel.from_xml_string(hand_mjcf())
+    data = mujoco.MjData(model)
+    free = model.joint("wrist_free").qposadr[0]
+    hinges = [model.joint(name).qposadr[0] for name in hd.JOINT_NAMES]
+    sites = [model.site(name).id for name in ("th_tip", "if_tip", "mf_tip", "rf_tip")]
+    for i in np.linspace(0, len(result.t) - 1, 7).astype(int):
+        data.qpos[free : free + 3] = result.wrist_pos[i]
+        data.qpos[free + 3 : free + 7] = result.wrist_quat[i]
+        data.qpos[hinges] = result.joints[i]
+        mujoco.mj_kinematics(model, data)
+        expected = result.wrist_pos[i] + retargeter.kinematics.tip_positions(result.joints[i]) @ quat_to_mat(result.wrist_quat[i]).T
+        np.testing.assert_allclose(data.site_xpos[sites], expected, atol=1e-4)
+
+
 def _frames(motion: HandMotion) -> np.ndarray:
     return keypoints_in_wrist(motion.keypoints, motion.wrist_pos, motion.wrist_quat)
 
@@ -153,9 +176,7 @@ class _FailingOptimizer:
         return getattr(self._opt, name)
 
 
-@pytest.mark.parametrize(
-    "failure", ["nan_keypoints", "solver_runtime_error", "solver_roundoff"], ids=["nan-input", "runtime-error", "roundoff"]
-)
+@pytest.mark.parametrize("failure", ["nan_keypoints", "solver_runtime_error", "solver_roundoff"], ids=["nan-input", "runtime-error", "roundoff"])
 def test_a_failed_frame_holds_the_previous_solution_and_is_flagged(demos: dict, failure: str) -> None:
     motion, _, _ = demos["rotate"]
     frames, k = _frames(motion), 40
@@ -170,7 +191,7 @@ def test_a_failed_frame_holds_the_previous_solution_and_is_flagged(demos: dict, 
             kp[8] = np.nan
         elif failure != "nan_keypoints":
             proxy.fail = i == k
-        q, s, residual, _ = rt.step(kp, float(motion.t[i]))
+        q, s, _, _ = rt.step(kp, float(motion.t[i]))
         out.append(q)
         status.append(s)
     assert status[k] == (INVALID_INPUT if failure == "nan_keypoints" else SOLVER_ERROR)

@@ -8,14 +8,12 @@ from pathlib import Path
 import numpy as np
 
 from schemas.glove import FINGERS
-from touch2robot.retarget.retargeter import _BASE_FROM_PALM, HandMotion, LeapKinematics, RetargetResult, keypoints_in_wrist
+from touch2robot.retarget.retargeter import BASE_FROM_PALM, HandMotion, LeapKinematics, RetargetResult, keypoints_in_wrist
 
 FINGER_COLOURS = {"thumb": "C0", "index": "C1", "middle": "C2", "ring": "C3", "little": "C7"}
 
 
-def comparison_png(
-    motion: HandMotion, result: RetargetResult, scaling: float, path: Path, frames: int = 4, kinematics: LeapKinematics | None = None
-) -> Path:
+def comparison_png(motion: HandMotion, result: RetargetResult, scaling: float, path: Path, frames: int = 4, kinematics: LeapKinematics | None = None) -> Path:
     """Save a PNG of ``frames`` evenly spaced frames: human keypoints scaled about the wrist (dashed,
     circles) and the robot's links and fingertips (solid, crosses), both in the human wrist frame
     (x to the fingers, y to the thumb, z back of the hand)."""
@@ -35,7 +33,7 @@ def comparison_png(
             chain = kp[[0, *range(1 + 4 * f, 5 + 4 * f)]]
             ax.plot(*chain.T, "--o", color=FINGER_COLOURS[finger], ms=2.5, lw=1.0, alpha=0.8)
         for finger, chain in kin.skeleton(result.joints[i]).items():
-            pts = chain @ _BASE_FROM_PALM  # base-frame points into the wrist (palm-axes) frame
+            pts = chain @ BASE_FROM_PALM  # base-frame points into the wrist (palm-axes) frame
             ax.plot(*pts.T, "-", color=FINGER_COLOURS[finger], lw=2.2)
             ax.plot(*pts[-1], "x", color="k", ms=6)
         ax.plot([0.0], [0.0], [0.0], "ks", ms=4)

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from touch2robot.geometry import mat_to_quat, quat_mul, quat_to_mat
+from touch2robot.geometry import quat_mul, quat_to_mat
 from touch2robot.leap import JOINT_NAMES, hand_urdf
 from touch2robot.leap import description as hd
 from touch2robot.retarget.config import FINGERTIP_KEYPOINTS, FINGERTIP_LINKS, LEAP_DEFAULT, N_KEYPOINTS, WRIST_KEYPOINT, RetargetConfig
@@ -50,9 +50,9 @@ STATUS_NAMES: tuple[str, ...] = ("ok", "solver_error", "non_finite", "residual",
 SETTLE_ROUNDS, SETTLE_TOL = 20, 1e-3
 
 # Rotation taking palm-frame (= human wrist frame) coordinates to the robot base frame.
-_BASE_FROM_PALM = quat_to_mat(np.asarray(hd.PALM_IN_WRIST_QUAT))
+BASE_FROM_PALM = quat_to_mat(np.asarray(hd.PALM_IN_WRIST_QUAT))
 _BASE_IN_PALM_QUAT = np.asarray(hd.PALM_IN_WRIST_QUAT) * np.array([1.0, -1.0, -1.0, -1.0])  # conjugate
-PALM_IN_HUMAN_WRIST: np.ndarray = _BASE_FROM_PALM.T @ np.asarray(hd.PALM_IN_WRIST_POS)
+PALM_IN_HUMAN_WRIST: np.ndarray = BASE_FROM_PALM.T @ np.asarray(hd.PALM_IN_WRIST_POS)
 """Robot palm origin in the human wrist frame (m): (0.098, 0.038, 0)."""
 
 # Robot skeleton for drawings: the links of each finger from the palm to the tip.
@@ -231,20 +231,21 @@ class Retargeter:
         # SLSQP may step a hair past a bound; the limits are hard
         return np.clip(x, self.kinematics.lower, self.kinematics.upper), OK
 
-    def _settle(self, q: np.ndarray, targets: np.ndarray) -> tuple[np.ndarray | None, int]:
+    def _settle(self, q: np.ndarray, targets: np.ndarray) -> np.ndarray:
         """Re-solve the first frame from its own solution until it stops moving: from the middle
         of the ranges the regulariser holds the first solve back, and the rest of the way would
-        otherwise show up as a start-up transient over the next frames."""
+        otherwise show up as a start-up transient over the next frames. The re-solves only refine
+        an accepted solution: one that fails ends the settling, keeping the last good solution."""
         for _ in range(SETTLE_ROUNDS):
             self._last = q
-            nxt, status = self._solve(targets)
+            nxt, _ = self._solve(targets)
             if nxt is None:
-                return None, status
+                break
             moved = np.abs(nxt - q).max()
             q = nxt
             if moved < SETTLE_TOL:
                 break
-        return q, OK
+        return q
 
     def step(self, keypoints_wrist: np.ndarray, t: float) -> tuple[np.ndarray, int, np.ndarray, float]:
         """Retarget one frame from keypoints (21, 3) in the human wrist frame at time ``t`` (s).
@@ -252,12 +253,12 @@ class Retargeter:
         solve fails (bad input, solver error, non-finite result, residual above ``max_residual``)
         holds the previous output and carries the failure status."""
         tic = time.perf_counter()
-        kp = np.asarray(keypoints_wrist, dtype=np.float64) @ _BASE_FROM_PALM.T  # into base-frame axes
+        kp = np.asarray(keypoints_wrist, dtype=np.float64) @ BASE_FROM_PALM.T  # into base-frame axes
         tips_target = self.config.scaling * (kp[list(FINGERTIP_KEYPOINTS)] - kp[WRIST_KEYPOINT])
         targets = kp[self._task] - kp[self._origin]
         q, status = (None, INVALID_INPUT) if not np.isfinite(kp).all() else self._solve(targets)
         if q is not None and self._output is None:
-            q, status = self._settle(q, targets)
+            q = self._settle(q, targets)
         if q is not None and np.linalg.norm(self.kinematics.tip_positions(q) - tips_target, axis=1).max() > self.config.max_residual:
             q, status = None, RESIDUAL
         if q is not None:
