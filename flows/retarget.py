@@ -25,7 +25,7 @@ def retarget(profile: str = "smoke", data: str | None = None) -> dict:
     """Retarget every ingested glove recording of the data folder with the profile's
     ``retarget`` section; draw the first recording of each task."""
     layout = DataLayout.from_env(data)
-    # the profile's section once Profile carries one; the LEAP default until then
+    # the profile's `retarget` section; the LEAP default for a Profile without one
     config = getattr(load_profile(profile), "retarget", RetargetConfig())
     gloves = glove_sessions(recording_rows(layout.lake).to_pylist())
     first = {}

@@ -14,7 +14,7 @@ FINGER_COLOURS = {"thumb": "C0", "index": "C1", "middle": "C2", "ring": "C3", "l
 
 
 def comparison_png(motion: HandMotion, result: RetargetResult, scaling: float, path: Path, frames: int = 4, kinematics: LeapKinematics | None = None) -> Path:
-    """Save a PNG of ``frames`` evenly spaced frames: human keypoints scaled about the wrist (dashed,
+    """Save a PNG of ``frames`` frames from open to closed hand: human keypoints scaled about the wrist (dashed,
     circles) and the robot's links and fingertips (solid, crosses), both in the human wrist frame
     (x to the fingers, y to the thumb, z back of the hand)."""
     import matplotlib
@@ -24,8 +24,11 @@ def comparison_png(motion: HandMotion, result: RetargetResult, scaling: float, p
 
     kin = kinematics or LeapKinematics()
     local = scaling * keypoints_in_wrist(motion.keypoints, motion.wrist_pos, motion.wrist_quat)
-    picks = np.linspace(0, len(result.t) - 1, frames).round().astype(int)
-    fig = plt.figure(figsize=(3.6 * frames, 4.0))
+    # frames spread over the hand's closure (mean wrist-to-fingertip distance), open to closed
+    closure = np.linalg.norm(local[:, [4, 8, 12, 16]], axis=-1).mean(axis=1)
+    order = np.argsort(-closure)
+    picks = order[np.linspace(0, len(order) - 1, frames).round().astype(int)]
+    fig = plt.figure(figsize=(4.2 * frames, 4.6))
     for k, i in enumerate(picks):
         ax = fig.add_subplot(1, frames, k + 1, projection="3d")
         kp = local[i]
@@ -36,13 +39,14 @@ def comparison_png(motion: HandMotion, result: RetargetResult, scaling: float, p
             pts = chain @ BASE_FROM_PALM  # base-frame points into the wrist (palm-axes) frame
             ax.plot(*pts.T, "-", color=FINGER_COLOURS[finger], lw=2.2)
             ax.plot(*pts[-1], "x", color="k", ms=6)
-        ax.plot([0.0], [0.0], [0.0], "ks", ms=4)
+        ax.plot([0.0], [0.0], [0.0], "ks", ms=4)  # the wrist
         ax.set_title(f"t = {result.t[i]:.2f} s\nmean tip residual {1e3 * np.nanmean(result.residual[i]):.1f} mm", fontsize=9)
-        ax.set_xlim(-0.05, 0.25)
-        ax.set_ylim(-0.15, 0.15)
-        ax.set_zlim(-0.2, 0.1)
-        ax.set_box_aspect((0.3, 0.3, 0.3))
-        ax.view_init(elev=25, azim=-120)
+        # equal scales on the three axes around this frame's points, so that lengths compare
+        centre = 0.5 * (kp.min(axis=0) + kp.max(axis=0))
+        for lim, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
+            lim(c - 0.13, c + 0.13)
+        ax.set_box_aspect((1.0, 1.0, 1.0))
+        ax.view_init(elev=20, azim=-60)
         ax.tick_params(labelsize=6)
     fig.suptitle(f"{result.recording_id}: human x {scaling:g} (dashed) vs LEAP (solid), wrist frame (m)", fontsize=10)
     fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.9))  # room for the suptitle
