@@ -24,7 +24,7 @@ if TYPE_CHECKING:  # the retargeter imports torch: loaded only when a task runs
 TIP_NAMES = ("thumb", "index", "middle", "ring")
 
 
-def _summary(result: RetargetResult, config: RetargetConfig) -> dict:
+def _summary(result: RetargetResult) -> dict:
     """The figures of one result that the MLflow run and the flow's artefact show."""
     from touch2robot.retarget.retargeter import STATUS_NAMES
 
@@ -41,7 +41,7 @@ def _summary(result: RetargetResult, config: RetargetConfig) -> dict:
         "solve_ms_mean": float(1e3 * result.solve_time.mean()),
         "solve_ms_p95": float(1e3 * np.percentile(result.solve_time, 95)),
         "max_joint_step_rad": float(step.max()),
-        "scaling": config.scaling,
+        "scaling": result.scaling,
     }
 
 
@@ -68,18 +68,18 @@ def retarget_recording(recording: dict, config: RetargetConfig, data: str, profi
     retargeter = Retargeter(config)
     result = retarget_motion(motion, config, retargeter)
     write_result(layout.lake, result)
-    summary = _summary(result, config)
+    summary = _summary(result)
     tags = {"profile": profile, "recording_id": rid, "task": recording["task"] or "", "file": name}
     with tracking.stage_run(layout, "retarget", f"retarget-{name}", tags) as run:
         import mlflow
 
         mlflow.log_params(config.model_dump(mode="json"))
-        mlflow.log_metrics({k: v for k, v in summary.items() if k != "scaling"})
+        mlflow.log_metrics(summary)
         if render:
             from touch2robot.retarget.render import comparison_png
 
             with tempfile.TemporaryDirectory() as tmp:
-                png = comparison_png(motion, result, config.scaling, Path(tmp) / f"retarget_{name}.png", kinematics=retargeter.kinematics)
+                png = comparison_png(motion, result, Path(tmp) / f"retarget_{name}.png", kinematics=retargeter.kinematics)
                 mlflow.log_artifact(str(png), "comparison")
         run_id = run.info.run_id
     if summary["failed_frames"]:

@@ -111,7 +111,7 @@ def test_robot_fingertips_follow_the_clean_human_motion(demos: dict, task: str) 
     true_tips = HumanHand(scale).forward(np.stack(truth["joints"])).keypoints[:, [4, 8, 12, 16]]  # wrist frame
     robot = Retargeter(LEAP_DEFAULT).kinematics
     base_from_palm = quat_to_mat(np.asarray(hd.PALM_IN_WRIST_QUAT))
-    robot_tips = np.stack([robot.tip_positions(q) for q in result.joints]) @ base_from_palm / LEAP_DEFAULT.scaling
+    robot_tips = np.stack([robot.tip_positions(q) for q in result.joints]) @ base_from_palm / result.scaling
     error = np.linalg.norm(robot_tips - true_tips, axis=-1)
     assert error.mean() < TRUTH_MEAN
     assert error.max() < TRUTH_MAX
@@ -246,6 +246,21 @@ def test_bad_hand_motion_is_a_clear_error_naming_the_recording(demos: dict, dama
         keypoints, pose, t = keypoints[:0], pose[:0], t[:0]
     with pytest.raises(HandMotionError, match=rf"recording bad-rec-7: .*{message}"):
         retarget_sequence(keypoints, pose, t, recording_id="bad-rec-7")
+
+
+def test_scaling_follows_the_hand_size(demos: dict) -> None:
+    """The factor is ``scaling`` x reference / hand length from the keypoints; keypoints that are
+    not in metres are refused by name."""
+    from touch2robot.retarget.retargeter import hand_length, motion_scaling
+
+    motion, result, truth_path = demos["pick"]
+    scale = float(pq.read_schema(truth_path.with_name(truth_path.name.replace(".motion", ""))).metadata[b"hand_scale"])
+    assert hand_length(motion) == pytest.approx(0.199 * scale, rel=0.01)  # the demonstrator's hand: 0.199 m at scale 1
+    assert result.scaling == pytest.approx(LEAP_DEFAULT.scaling * 0.2 / hand_length(motion))
+    assert motion_scaling(motion, RetargetConfig(reference_hand_length=None)) == LEAP_DEFAULT.scaling
+    keypoints, pose, t = _arrays(motion)
+    with pytest.raises(HandMotionError, match=r"recording mm-rec: hand length \d+\.\d+ m from the keypoints is outside"):
+        retarget_sequence(keypoints * 1000.0, pose, t, recording_id="mm-rec")
 
 
 def test_lake_input_whose_streams_disagree_is_an_error(tmp_path: Path) -> None:

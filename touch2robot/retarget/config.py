@@ -42,6 +42,14 @@ class RetargetConfig(BaseModel):
     # adult hand (~0.20 m); measured on the demonstrator: 1.1 leaves the fingers short of their
     # targets, 1.25 and above the thumb (mean fingertip residual 2.1 mm at 1.15, 3.3 mm at 1.2).
     scaling: float = Field(1.15, gt=0, description="robot vector = scaling x human vector (the LEAP Hand is larger)")
+    # Hands differ by +-10 % or more; with one fixed factor a large hand asks for fingertips beyond
+    # the LEAP's reach (demonstrator: mean residual 7 mm for a 1.07 hand vs 1 mm for a 0.92 one).
+    reference_hand_length: float | None = Field(
+        0.2,
+        gt=0,
+        description="hand length (m, wrist -> middle MCP -> middle tip along the bones, median over the recording) for which "
+        "`scaling` holds; a recording's factor is scaling x reference / its hand length. None: `scaling` for every hand",
+    )
     huber_delta: float = Field(0.02, gt=0, description="Huber (smooth-L1) transition, m of vector error")
     regulariser: float = Field(4e-3, ge=0, description="weight of |q - q_previous|^2 (Dex Retargeting's norm_delta)")
     # 10 Hz keeps human finger motion (a few Hz) and halves the tracker jitter in the joints

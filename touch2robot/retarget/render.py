@@ -13,7 +13,7 @@ from touch2robot.retarget.retargeter import BASE_FROM_PALM, HandMotion, LeapKine
 FINGER_COLOURS = {"thumb": "C0", "index": "C1", "middle": "C2", "ring": "C3", "little": "C7"}
 
 
-def comparison_png(motion: HandMotion, result: RetargetResult, scaling: float, path: Path, frames: int = 4, kinematics: LeapKinematics | None = None) -> Path:
+def comparison_png(motion: HandMotion, result: RetargetResult, path: Path, frames: int = 4, kinematics: LeapKinematics | None = None) -> Path:
     """Save a PNG of ``frames`` frames from open to closed hand: human keypoints scaled about the wrist (dashed,
     circles) and the robot's links and fingertips (solid, crosses), both in the human wrist frame
     (x to the fingers, y to the thumb, z back of the hand)."""
@@ -23,6 +23,7 @@ def comparison_png(motion: HandMotion, result: RetargetResult, scaling: float, p
     import matplotlib.pyplot as plt
 
     kin = kinematics or LeapKinematics()
+    scaling = result.scaling
     local = scaling * keypoints_in_wrist(motion.keypoints, motion.wrist_pos, motion.wrist_quat)
     # frames spread over the hand's closure (mean wrist-to-fingertip distance), open to closed
     closure = np.linalg.norm(local[:, [4, 8, 12, 16]], axis=-1).mean(axis=1)
@@ -48,7 +49,7 @@ def comparison_png(motion: HandMotion, result: RetargetResult, scaling: float, p
         ax.set_box_aspect((1.0, 1.0, 1.0))
         ax.view_init(elev=20, azim=-60)
         ax.tick_params(labelsize=6)
-    fig.suptitle(f"{result.recording_id}: human x {scaling:g} (dashed) vs LEAP (solid), wrist frame (m)", fontsize=10)
+    fig.suptitle(f"{result.recording_id}: human x {scaling:.3f} (dashed) vs LEAP (solid), wrist frame (m)", fontsize=10)
     fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.9))  # room for the suptitle
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

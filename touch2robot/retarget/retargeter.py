@@ -83,7 +83,7 @@ class RetargetResult:
     """Per-frame output: ``joints`` (T, 16) rad in ``JOINT_NAMES`` order, ``status`` (T,) int8
     (``STATUS_NAMES``), ``residual`` (T, 4) m, distance of each robot fingertip (thumb, index,
     middle, ring) from its scaled human target in the wrist frame, ``wrist_pos``/``wrist_quat``
-    the robot wrist (``base``) pose in the world, ``solve_time`` (T,) s."""
+    the robot wrist (``base``) pose in the world, ``solve_time`` (T,) s, ``scaling`` the factor."""
 
     recording_id: str
     t: np.ndarray
@@ -93,6 +93,7 @@ class RetargetResult:
     wrist_pos: np.ndarray
     wrist_quat: np.ndarray
     solve_time: np.ndarray
+    scaling: float  # the human -> robot factor used for this recording
 
     @property
     def failed(self) -> np.ndarray:
@@ -139,6 +140,29 @@ def validate_hand_motion(
         i = int(np.argmax(np.abs(norm - 1.0) > 0.05))
         raise fail(f"wrist orientation at frame {i} is not a unit quaternion (norm {norm[i]:.3f})")
     return HandMotion(recording_id, t, kp, pose[:, :3], pose[:, 3:] / norm[:, None])
+
+
+# The chain that measures hand length: wrist -> middle MCP -> PIP -> DIP -> tip (bone lengths do not
+# change with the pose, so the median over frames is the tracker's estimate of the subject's hand).
+HAND_LENGTH_CHAIN = (0, 9, 10, 11, 12)
+PLAUSIBLE_HAND_LENGTH = (0.08, 0.35)  # m: outside, the keypoints are not in metres or not a hand
+
+
+def hand_length(motion: HandMotion) -> float:
+    """The subject's hand length (m): wrist to middle fingertip along the bones, median over frames."""
+    chain = motion.keypoints[:, list(HAND_LENGTH_CHAIN)]
+    length = float(np.median(np.linalg.norm(np.diff(chain, axis=1), axis=-1).sum(axis=1)))
+    lo, hi = PLAUSIBLE_HAND_LENGTH
+    if not lo <= length <= hi:
+        raise HandMotionError(f"recording {motion.recording_id}: hand length {length:.3f} m from the keypoints is outside {lo}..{hi} m")
+    return length
+
+
+def motion_scaling(motion: HandMotion, config: RetargetConfig) -> float:
+    """The human -> robot factor for one recording (``config.scaling``, adjusted to the hand's size)."""
+    if config.reference_hand_length is None:
+        return config.scaling
+    return config.scaling * config.reference_hand_length / hand_length(motion)
 
 
 def keypoints_in_wrist(keypoints: np.ndarray, wrist_pos: np.ndarray, wrist_quat: np.ndarray) -> np.ndarray:
@@ -213,8 +237,15 @@ class Retargeter:
         """The middle of the joint ranges: the first frame's warm start."""
         return 0.5 * (self.kinematics.lower + self.kinematics.upper)
 
-    def reset(self) -> None:
-        """Forget the previous frames (start of a new sequence)."""
+    @property
+    def scaling(self) -> float:
+        """The human -> robot factor of the current sequence."""
+        return float(self.optimizer.scaling)
+
+    def reset(self, scaling: float | None = None) -> None:
+        """Forget the previous frames (start of a new sequence), with the sequence's factor
+        (default ``config.scaling``)."""
+        self.optimizer.scaling = self.config.scaling if scaling is None else scaling
         self._last = self.middle  # previous accepted (unfiltered) solution
         self._output: np.ndarray | None = None  # previous output (filtered)
         self._t: float | None = None
@@ -254,7 +285,7 @@ class Retargeter:
         holds the previous output and carries the failure status."""
         tic = time.perf_counter()
         kp = np.asarray(keypoints_wrist, dtype=np.float64) @ BASE_FROM_PALM.T  # into base-frame axes
-        tips_target = self.config.scaling * (kp[list(FINGERTIP_KEYPOINTS)] - kp[WRIST_KEYPOINT])
+        tips_target = self.scaling * (kp[list(FINGERTIP_KEYPOINTS)] - kp[WRIST_KEYPOINT])
         targets = kp[self._task] - kp[self._origin]
         q, status = (None, INVALID_INPUT) if not np.isfinite(kp).all() else self._solve(targets)
         if q is not None and self._output is None:
@@ -280,9 +311,11 @@ class Retargeter:
 
 
 def retarget_motion(motion: HandMotion, config: RetargetConfig = LEAP_DEFAULT, retargeter: Retargeter | None = None) -> RetargetResult:
-    """Retarget a validated hand motion from its first frame (the retargeter is reset)."""
+    """Retarget a validated hand motion from its first frame. A given ``retargeter`` is reset and
+    its own config is used (it saves loading the model per recording)."""
     rt = retargeter or Retargeter(config)
-    rt.reset()  # a new sequence starts from the middle of the joint ranges
+    scaling = motion_scaling(motion, rt.config)
+    rt.reset(scaling)  # a new sequence starts from the middle of the joint ranges
     local = keypoints_in_wrist(motion.keypoints, motion.wrist_pos, motion.wrist_quat)
     n = len(motion.t)
     joints, residual = np.empty((n, len(JOINT_NAMES))), np.empty((n, len(FINGERTIP_LINKS)))
@@ -290,7 +323,7 @@ def retarget_motion(motion: HandMotion, config: RetargetConfig = LEAP_DEFAULT, r
     for i in range(n):
         joints[i], status[i], residual[i], solve_time[i] = rt.step(local[i], float(motion.t[i]))
     pos, quat = robot_wrist_pose(motion.wrist_pos, motion.wrist_quat)
-    return RetargetResult(motion.recording_id, motion.t.copy(), joints, status, residual, pos, quat, solve_time)
+    return RetargetResult(motion.recording_id, motion.t.copy(), joints, status, residual, pos, quat, solve_time, scaling)
 
 
 def retarget_sequence(
