@@ -28,6 +28,7 @@ from touch2robot.retarget.lake import load_hand_motion, result_rows
 from touch2robot.retarget.retargeter import (
     INVALID_INPUT,
     OK,
+    PALM_IN_HUMAN_WRIST,
     RESIDUAL,
     SOLVER_ERROR,
     STATUS_NAMES,
@@ -142,7 +143,7 @@ def test_the_simulated_hand_reproduces_the_retargeted_fingertips(demos: dict, re
 
     from touch2robot.leap import hand_mjcf
 
-    _, result, _ = demos["rotate"]
+    motion, result, _ = demos["rotate"]
     model = mujoco.MjModel.from_xml_string(hand_mjcf())
     data = mujoco.MjData(model)
     free = model.joint("wrist_free").qposadr[0]
@@ -155,6 +156,10 @@ def test_the_simulated_hand_reproduces_the_retargeted_fingertips(demos: dict, re
         mujoco.mj_kinematics(model, data)
         expected = result.wrist_pos[i] + retargeter.kinematics.tip_positions(result.joints[i]) @ quat_to_mat(result.wrist_quat[i]).T
         np.testing.assert_allclose(data.site_xpos[sites], expected, atol=1e-4)
+        # the documented offset: the robot palm origin sits at PALM_IN_HUMAN_WRIST in the human wrist frame
+        palm = motion.wrist_pos[i] + quat_to_mat(motion.wrist_quat[i]) @ PALM_IN_HUMAN_WRIST
+        np.testing.assert_allclose(data.body("palm").xpos, palm, atol=1e-6)
+    np.testing.assert_allclose(PALM_IN_HUMAN_WRIST, (0.098, 0.038, 0.0), atol=1e-6)
 
 
 def _frames(motion: HandMotion) -> np.ndarray:

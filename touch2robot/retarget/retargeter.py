@@ -7,7 +7,7 @@ human wrist frame's orientation and its wrist frame (the URDF root ``base``, dex
 origin on the wrist edge of the palm) sits at the human wrist position. The robot palm origin (near
 the index MCP) is therefore at ``PALM_IN_HUMAN_WRIST`` = (+0.098, +0.038, 0) m in the human wrist
 frame: 98 mm towards the fingers and 38 mm towards the thumb (the base origin is mid-width of the
-palm's wrist edge, at the palm frame's z = 0, i.e. its back plate). The robot wrist pose reported with
+palm's wrist edge, at the palm frame's z = 0; the palm spans z -0.035..0.012). The robot wrist pose reported with
 every frame is the world pose of that ``base`` frame, which is also the MJCF hand's ``wrist`` body
 (``touch2robot.leap.mjcf``): the teachers' mocap target as it is.
 
@@ -15,9 +15,10 @@ Per frame: the human vectors (config: origin keypoint -> task keypoint, in the w
 the targets of Dex Retargeting's ``VectorOptimizer`` (robot link vectors in the ``base`` frame,
 Huber loss, ``scaling``, ``regulariser`` x |q - q_prev|^2, NLopt SLSQP, joint limits as bounds),
 warm-started from the previous frame's solution (the first frame from the middle of the joint
-ranges). What this module adds around the library: exact joint-limit bounds (the library widens
-them by 1e-3 rad), a per-frame status instead of the library's print-and-continue on solver
-errors, the residual check, a time-aware low-pass filter, and input validation.
+ranges, re-solved until it settles). What this module adds around the library: exact joint-limit
+bounds (the library widens them by 1e-3 rad), a per-frame status instead of the library's
+print-and-continue on solver errors, the residual check, a time-aware low-pass filter, the
+per-recording scaling from the measured hand length, and input validation.
 """
 
 from __future__ import annotations
