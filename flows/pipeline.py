@@ -6,14 +6,16 @@ from prefect import flow
 
 from flows.evaluate import evaluate
 from flows.ingest import ingest
+from flows.retarget import retarget
 from flows.synth import synth
 
 
 @flow(name="pipeline", log_prints=True)
 def pipeline(profile: str = "smoke", data: str | None = None, synthesize: bool = True) -> dict:
     """Simulated demonstrator (unless ``synthesize`` is false: bring your own recordings
-    in ``<data>/recordings``) -> ingest and contacts -> evaluation."""
+    in ``<data>/recordings``) -> ingest and contacts -> kinematic retargeting -> evaluation."""
     if synthesize:
         synth(profile=profile, data=data)
     ingested = ingest(profile=profile, data=data)
-    return {"ingest": ingested, "evaluate": evaluate(profile=profile, data=data)}
+    retargeted = retarget(profile=profile, data=data)
+    return {"ingest": ingested, "retarget": retargeted, "evaluate": evaluate(profile=profile, data=data)}

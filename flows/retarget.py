@@ -11,7 +11,6 @@ from tasks.ingest import refresh_catalog
 from tasks.retarget import report_retarget, retarget_recording
 from touch2robot.config import load_profile
 from touch2robot.ingest import recording_rows
-from touch2robot.retarget import RetargetConfig
 from touch2robot.settings import DataLayout
 
 
@@ -25,8 +24,7 @@ def retarget(profile: str = "smoke", data: str | None = None) -> dict:
     """Retarget every ingested glove recording of the data folder with the profile's
     ``retarget`` section; draw the first recording of each task."""
     layout = DataLayout.from_env(data)
-    # the profile's `retarget` section; the LEAP default for a Profile without one
-    config = getattr(load_profile(profile), "retarget", RetargetConfig())
+    config = load_profile(profile).retarget
     gloves = glove_sessions(recording_rows(layout.lake).to_pylist())
     first = {}
     for r in gloves:

@@ -11,6 +11,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from touch2robot.contacts.config import ContactsConfig
+from touch2robot.retarget.config import RetargetConfig
 from touch2robot.synth.config import SynthConfig
 
 BUILTIN_PROFILES = ("smoke", "local", "paper")
@@ -25,6 +26,7 @@ class Profile(BaseModel):
     description: str = ""
     synth: SynthConfig = SynthConfig()
     contacts: ContactsConfig = ContactsConfig()
+    retarget: RetargetConfig = RetargetConfig()
 
 
 class ProfileError(ValueError):
