@@ -30,7 +30,8 @@ KINDS = {
 
 def run_one(kind: str, profile: str, data: Path) -> dict:
     """Run the ingest flow once under one runner (in this process) and time it."""
-    from flows.ingest import ingest  # first: configures the environment before Prefect loads its settings
+    # flows first: importing it configures the environment before Prefect reads its settings
+    from flows.ingest import ingest  # noqa: I001
     from prefect import flow
     from tasks.runners import ProfileTaskRunner
     from touch2robot.runner_config import RunnerConfig
@@ -51,6 +52,7 @@ def main() -> None:
     parser.add_argument("--recordings", type=Path, help="folder of MCAP recordings to ingest (copied per run)")
     parser.add_argument("--profile", default="local", help="profile whose contacts settings the ingest uses")
     parser.add_argument("--kinds", default=",".join(KINDS), help=f"comma-separated subset of {', '.join(KINDS)}")
+    parser.add_argument("--repeat", type=int, default=1, help="rounds over the kinds (interleaved, so background load hits all alike)")
     parser.add_argument("--one", choices=KINDS, help=argparse.SUPPRESS)
     parser.add_argument("--data", type=Path, help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -60,7 +62,7 @@ def main() -> None:
     if args.recordings is None:
         parser.error("--recordings is required")
     rows = []
-    for kind in args.kinds.split(","):
+    for kind in [k for _ in range(args.repeat) for k in args.kinds.split(",")]:
         with tempfile.TemporaryDirectory(prefix=f"bench-{kind}-") as tmp:
             data = Path(tmp)
             shutil.copytree(args.recordings, data / "recordings")
@@ -75,11 +77,12 @@ def main() -> None:
                 [sys.executable, __file__, "--one", kind, "--profile", args.profile, "--data", str(data)],
                 env=env, capture_output=True, text=True, check=True,
             )  # fmt: skip
-            rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
+            rows.append({**json.loads(out.stdout.strip().splitlines()[-1]), "load_1min": round(os.getloadavg()[0], 1)})
             print(json.dumps(rows[-1]), flush=True)
-    print(f"\n| runner | ingest flow run (s) | files |\n|---|---|---|")
-    for r in rows:
-        print(f"| {r['kind']} | {r['seconds']} | {r['files']} |")
+    print("\n| runner | ingest flow run (s), each round | files |\n|---|---|---|")
+    for kind in args.kinds.split(","):
+        seconds = [r["seconds"] for r in rows if r["kind"] == kind]
+        print(f"| {kind} | {', '.join(map(str, seconds))} | {rows[0]['files']} |")
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from contextlib import AbstractContextManager, nullcontext
+from types import TracebackType
 from typing import Any
 
 from prefect.context import FlowRunContext
@@ -119,7 +120,7 @@ class ProfileTaskRunner(TaskRunner[PrefectFuture[Any]]):
         with _share_ephemeral_api():
             return self._inner.submit(task, parameters, wait_for, dependencies)
 
-    def __exit__(self, exc_type: Any, exc_value: Any, traceback: Any) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, exc_value: BaseException | None, traceback: TracebackType | None) -> None:
         inner, self._inner = self._inner, None
         try:
             if inner is not None:

@@ -175,7 +175,7 @@ def test_fan_out_runs_on_dask_workers(probe: dict) -> None:
 @pytest.mark.slow
 def test_profile_names_the_runner(probe: dict) -> None:
     if probe["by_profile"] is None:
-        pytest.skip("touch2robot.config.Profile has no `runner` section yet (see infra/README.md, 'Scale-out')")
+        pytest.skip("touch2robot.config.Profile has no `runner: RunnerConfig` section yet (see infra/README.md, section 5)")
     assert probe["by_profile"]["runner"] == "ThreadPoolTaskRunner"
     assert probe["by_profile"]["max_workers"] == 3
     assert probe["by_profile"]["pid"] == probe["flow_pid"]

