@@ -160,6 +160,22 @@ def ui(
     subprocess.run(cmd, check=False)
 
 
+sim_app = typer.Typer(help="The MuJoCo scenes of the four tasks.", no_args_is_help=True)
+app.add_typer(sim_app, name="sim")
+
+
+@sim_app.command("render")
+def sim_render(
+    out: Annotated[Path, typer.Option(help="folder for the PNGs")] = Path("data/reports/scenes"),
+    size: Annotated[int, typer.Option(help="image width and height in pixels")] = 224,
+) -> None:
+    """Render every task scene at its reset state from both cameras (headless: MUJOCO_GL=egl)."""
+    from touch2robot.sim.render import render_scenes
+
+    for path in render_scenes(out, size, size):
+        console.print(str(path))
+
+
 def main() -> None:
     app()
 

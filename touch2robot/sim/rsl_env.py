@@ -1,0 +1,125 @@
+"""rsl-rl's VecEnv over a BatchEnv, with the task-specific parts behind an ``Objective``:
+what an action commands, what the policy and critic observe, the named reward terms, when
+an episode ends early, and how a copy is reset. Teachers plug their objectives in here."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+import torch
+from rsl_rl.env import VecEnv
+from tensordict import TensorDict
+
+from touch2robot.sim.env import BatchEnv
+
+
+class Objective(Protocol):
+    """The task-specific side of an RL environment, vectorised over the batch."""
+
+    num_actions: int
+
+    def reset(self, env: BatchEnv, ids: np.ndarray, rng: np.random.Generator) -> None:
+        """Reset copies ``ids`` (env.reset plus the objective's own per-copy state)."""
+
+    def command(self, env: BatchEnv, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """Policy actions (N, num_actions) -> (joint targets (N, 16), wrist pos, wrist quat)."""
+
+    def observe(self, env: BatchEnv) -> dict[str, np.ndarray]:
+        """Observation groups, e.g. {"actor": (N, d_a), "critic": (N, d_c)}."""
+
+    def reward(self, env: BatchEnv, actions: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Total reward (N,) and its weighted named terms (each (N,))."""
+
+    def terminated(self, env: BatchEnv) -> np.ndarray:
+        """(N,) bool: episodes that end early (e.g. tracking lost)."""
+
+
+class RslVecEnv(VecEnv):
+    """The VecEnv rsl-rl's OnPolicyRunner drives. Copies that finish are reset inside
+    ``step`` (rsl-rl has no reset call); ``extras["time_outs"]`` marks truncations so that
+    PPO bootstraps them, and ``extras["log"]`` carries the mean of each reward term."""
+
+    def __init__(self, env: BatchEnv, objective: Objective, max_episode_length: int, seed: int = 0, device: str = "cpu") -> None:
+        self.env = env
+        self.objective = objective
+        self.num_envs = env.n
+        self.num_actions = objective.num_actions
+        self.max_episode_length = max_episode_length
+        self.device = device
+        self.cfg = {"sim": env.cfg.model_dump(), "task": env.scene.spec.name, "objective": type(objective).__name__}
+        self.rng = np.random.default_rng(seed)
+        self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long, device=device)
+        objective.reset(env, np.arange(self.num_envs), self.rng)
+
+    def _obs(self) -> TensorDict:
+        groups = self.objective.observe(self.env)
+        return TensorDict(
+            {k: torch.as_tensor(v, dtype=torch.float32, device=self.device) for k, v in groups.items()},
+            batch_size=[self.num_envs],
+            device=self.device,
+        )
+
+    def get_observations(self) -> TensorDict:
+        return self._obs()
+
+    def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
+        a = actions.detach().cpu().numpy().astype(np.float64)
+        targets, wrist_pos, wrist_quat = self.objective.command(self.env, a)
+        self.env.step(targets, wrist_pos, wrist_quat)
+        self.episode_length_buf += 1
+        reward, terms = self.objective.reward(self.env, a)
+        terminated = self.objective.terminated(self.env)
+        time_outs = (self.episode_length_buf >= self.max_episode_length).cpu().numpy()
+        done = terminated | time_outs
+        log = {f"reward/{k}": float(np.mean(v)) for k, v in terms.items()}
+        log["contact/any_region"] = float(self.env.region_contact.any(axis=1).mean())
+        ids = np.flatnonzero(done)
+        if ids.size:
+            self.objective.reset(self.env, ids, self.rng)
+            self.episode_length_buf[torch.as_tensor(ids, device=self.device)] = 0
+        extras = {"time_outs": torch.as_tensor(time_outs & ~terminated, device=self.device), "log": log}
+        return (
+            self._obs(),
+            torch.as_tensor(reward, dtype=torch.float32, device=self.device),
+            torch.as_tensor(done, dtype=torch.long, device=self.device),
+            extras,
+        )
+
+
+class JointTracking:
+    """A simple objective to prove the loop: track a reference joint trajectory (sinusoids
+    around the home pose) with residual actions; reward exp(-|q - q_ref|^2 / sigma)."""
+
+    num_actions = 16
+
+    def __init__(self, amplitude: float = 0.35, frequency_hz: float = 0.8, action_scale: float = 0.3, sigma: float = 0.5) -> None:
+        self.amplitude, self.frequency, self.action_scale, self.sigma = amplitude, frequency_hz, action_scale, sigma
+        self.phase = np.zeros((0, 16))
+
+    def _reference(self, env: BatchEnv, step_offset: int = 0) -> np.ndarray:
+        t = (env.time_step + step_offset)[:, None] * env.cfg.control_dt
+        home = env.home_state[env.layout.qpos][env.scene.hand_qpos]
+        ref = home + self.amplitude * np.sin(2 * np.pi * self.frequency * t + self.phase)
+        return np.clip(ref, env.ctrl_low, env.ctrl_high)
+
+    def reset(self, env: BatchEnv, ids: np.ndarray, rng: np.random.Generator) -> None:
+        if self.phase.shape[0] != env.n:
+            self.phase = np.zeros((env.n, 16))
+        self.phase[ids] = rng.uniform(0, 2 * np.pi, (ids.size, 16))
+        env.reset(ids)
+
+    def command(self, env: BatchEnv, actions: np.ndarray) -> tuple[np.ndarray, None, None]:
+        return self._reference(env, 1) + self.action_scale * np.clip(actions, -1.0, 1.0), None, None
+
+    def observe(self, env: BatchEnv) -> dict[str, np.ndarray]:
+        obs = np.concatenate([env.hand_qpos, 0.1 * env.hand_qvel, self._reference(env, 1), self._reference(env, 2)], axis=1)
+        return {"actor": obs, "critic": obs}
+
+    def reward(self, env: BatchEnv, actions: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        err = np.sum((env.hand_qpos - self._reference(env)) ** 2, axis=1)
+        terms = {"tracking": np.exp(-err / self.sigma), "action_rate": -0.01 * np.sum(actions**2, axis=1)}
+        return terms["tracking"] + terms["action_rate"], terms
+
+    def terminated(self, env: BatchEnv) -> np.ndarray:
+        return np.zeros(env.n, dtype=bool)
