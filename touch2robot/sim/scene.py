@@ -97,12 +97,13 @@ def grasp_target(spec: TaskSpec) -> np.ndarray:
 def home_wrist(spec: TaskSpec) -> tuple[np.ndarray, np.ndarray]:
     """Reset pose of the wrist: palm down with the grasp point above the object (or the handle).
 
-    For the drawer the fingers point toward -x, away from the cabinet, so that the hand clears it.
+    For the drawer the fingers point toward -x, away from the cabinet, and the hand hovers higher
+    so that the curled thumb clears the cabinet top.
     """
     quat = PALM_DOWN if spec.slide is None else quat_mul(np.array([0.0, 0.0, 0.0, 1.0]), PALM_DOWN)
     palm_rot = quat_to_mat(np.asarray(hd.PALM_IN_WRIST_QUAT))
     grasp_in_wrist = np.asarray(hd.PALM_IN_WRIST_POS) + palm_rot @ np.asarray(GRASP_POINT_IN_PALM)
-    above = grasp_target(spec) + np.array([0.0, 0.0, 0.06])
+    above = grasp_target(spec) + np.array([0.0, 0.0, 0.06 if spec.slide is None else 0.10])
     return above - quat_to_mat(quat) @ grasp_in_wrist, quat
 
 
