@@ -6,18 +6,18 @@ from __future__ import annotations
 from pathlib import Path
 
 from prefect import flow, unmapped
-from prefect.task_runners import ThreadPoolTaskRunner
 
 from tasks.common import file_digest, stored
 from tasks.evaluate import evaluate_ratings, evaluate_source, log_evaluation, log_user_study, publish_artefacts, store_table
 from tasks.ingest import refresh_catalog
+from tasks.runners import ProfileTaskRunner
 from touch2robot import tracking
 from touch2robot.evaluate import REFERENCE_SOURCE, evaluated_sources, folder_digest, ratings_files, source_folders
 from touch2robot.metrics import ALL
 from touch2robot.settings import DataLayout
 
 
-@flow(name="evaluate", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=True)
+@flow(name="evaluate", task_runner=ProfileTaskRunner(), log_prints=True)
 def evaluate(profile: str = "smoke", data: str | None = None, ratings: str | None = None, reference: str = REFERENCE_SOURCE) -> dict:
     """Score every contact source in the lake other than ``reference`` (all its methods and tasks)
     and the user-study ratings (``ratings``: a CSV or a folder of them, default

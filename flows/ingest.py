@@ -5,7 +5,6 @@ from __future__ import annotations
 from pathlib import Path
 
 from prefect import flow, get_run_logger, unmapped
-from prefect.task_runners import ThreadPoolTaskRunner
 
 from tasks.common import file_digest, stored
 from tasks.ingest import (
@@ -16,12 +15,13 @@ from tasks.ingest import (
     remove_superseded,
     report_ingest,
 )
+from tasks.runners import ProfileTaskRunner
 from touch2robot.config import load_profile
 from touch2robot.ingest import link_replays, recording_rows
 from touch2robot.settings import DataLayout
 
 
-@flow(name="ingest", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=True)
+@flow(name="ingest", task_runner=ProfileTaskRunner(), log_prints=True)
 def ingest(profile: str = "smoke", data: str | None = None, folder: str | None = None) -> dict:
     """Ingest every MCAP under ``folder`` (default ``<data>/recordings``): bad files are
     quarantined with a reason; contacts and thresholds are extracted; the catalog is refreshed."""

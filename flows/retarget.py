@@ -4,11 +4,11 @@
 from __future__ import annotations
 
 from prefect import flow, unmapped
-from prefect.task_runners import ThreadPoolTaskRunner
 
 from tasks.common import stored
 from tasks.ingest import refresh_catalog
 from tasks.retarget import report_retarget, retarget_recording
+from tasks.runners import ProfileTaskRunner
 from touch2robot.config import load_profile
 from touch2robot.ingest import recording_rows
 from touch2robot.settings import DataLayout
@@ -19,7 +19,7 @@ def glove_sessions(rows: list[dict]) -> list[dict]:
     return sorted((r for r in rows if r["status"] == "ingested" and r["kind"] == "glove_session"), key=lambda r: r["file_name"])
 
 
-@flow(name="retarget", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=True)
+@flow(name="retarget", task_runner=ProfileTaskRunner(), log_prints=True)
 def retarget(profile: str = "smoke", data: str | None = None) -> dict:
     """Retarget every ingested glove recording of the data folder with the profile's
     ``retarget`` section; draw the first recording of each task."""

@@ -3,16 +3,16 @@
 from __future__ import annotations
 
 from prefect import flow, unmapped
-from prefect.task_runners import ThreadPoolTaskRunner
 
 from tasks.common import stored
 from tasks.synth import synthesize_ratings, synthesize_recording
+from tasks.runners import ProfileTaskRunner
 from touch2robot.config import load_profile
 from touch2robot.settings import DataLayout
 from touch2robot.synth.generate import plan
 
 
-@flow(name="synth", task_runner=ThreadPoolTaskRunner(max_workers=2), log_prints=True)
+@flow(name="synth", task_runner=ProfileTaskRunner(), log_prints=True)
 def synth(profile: str = "smoke", data: str | None = None) -> list[str]:
     """Write the profile's glove sessions, robot replays, calibrations and the synthetic
     user-study ratings under ``<data>/recordings`` (ground truth under ``<data>/groundtruth``)."""

@@ -20,6 +20,14 @@ os.environ.pop("MLFLOW_TRACKING_URI", None)
 os.environ.pop("PREFECT_API_URL", None)
 
 
+@pytest.fixture(autouse=True)
+def _no_tracking_uri_leak():
+    """MLflow exports MLFLOW_TRACKING_URI whenever a URI is set; one test's store must not
+    become the next test's 'user server'."""
+    yield
+    os.environ.pop("MLFLOW_TRACKING_URI", None)
+
+
 @pytest.fixture(scope="session")
 def session_dir() -> Path:
     return _SESSION_DIR

@@ -72,8 +72,9 @@ def test_cache_survives_a_new_process(smoke_data: Path, tmp_path: Path) -> None:
     assert rows == 8
     import mlflow
 
-    mlflow.set_tracking_uri(f"sqlite:///{data / 'mlflow.db'}")
-    runs = mlflow.search_runs(experiment_names=["touch2robot/ingest"])
+    from touch2robot import tracking
+
+    runs = mlflow.search_runs(experiment_ids=[tracking.experiment(DataLayout(data), "ingest")])
     assert len(runs) == 2 and (runs["metrics.quarantined"] == 0).all()
     artifacts = mlflow.artifacts.list_artifacts(run_id=runs.run_id[0], artifact_path="contact_timelines")
     assert len(artifacts) == 4

@@ -160,6 +160,25 @@ def ui(
     subprocess.run(cmd, check=False)
 
 
+@app.command()
+def deploy(
+    pool: Annotated[str, typer.Option("--pool", help="work pool (created if missing): touch2robot-local, touch2robot-docker or your own")] = "touch2robot-local",
+    flow: Annotated[list[str] | None, typer.Option("--flow", help="only this flow's deployment (repeatable)")] = None,
+) -> None:
+    """Register the deployments of prefect.yaml on a work pool of the Prefect server named by
+    PREFECT_API_URL (see infra/README.md)."""
+    from flows.deploy import deploy_all
+
+    try:
+        deployed = deploy_all(pool, flows=flow)
+    except (RuntimeError, ValueError) as e:
+        console.print(f"[red]{e}[/red]")
+        raise typer.Exit(2) from None
+    for name, deployment_id in deployed.items():
+        console.print(f"{name}  {deployment_id}")
+    console.print(f"start a worker: uv run prefect worker start --pool {pool}")
+
+
 sim_app = typer.Typer(help="The MuJoCo scenes of the four tasks.", no_args_is_help=True)
 app.add_typer(sim_app, name="sim")
 

@@ -12,6 +12,7 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 
 from touch2robot.contacts.config import ContactsConfig
 from touch2robot.retarget.config import RetargetConfig
+from touch2robot.runner_config import RunnerConfig
 from touch2robot.synth.config import SynthConfig
 
 BUILTIN_PROFILES = ("smoke", "local", "paper")
@@ -27,6 +28,7 @@ class Profile(BaseModel):
     synth: SynthConfig = SynthConfig()
     contacts: ContactsConfig = ContactsConfig()
     retarget: RetargetConfig = RetargetConfig()
+    runner: RunnerConfig = RunnerConfig()
 
 
 class ProfileError(ValueError):

@@ -4,9 +4,10 @@ data folder, never in the working directory."""
 
 from __future__ import annotations
 
+import fcntl
 import os
-from contextlib import contextmanager
 from collections.abc import Iterator
+from contextlib import contextmanager, nullcontext
 
 import mlflow
 
@@ -17,8 +18,7 @@ def local_uri(layout: DataLayout) -> str:
     return f"sqlite:///{layout.mlflow_db}"
 
 
-# Local URIs this process pointed MLflow at: set_tracking_uri exports MLFLOW_TRACKING_URI,
-# which must not then be mistaken for a server the user chose.
+# Local URIs this process pointed MLflow at (never mistaken for a server the user chose).
 _LOCAL_URIS: set[str] = set()
 
 
@@ -35,8 +35,27 @@ def tracking_uri(layout: DataLayout) -> str:
 def experiment(layout: DataLayout, stage: str) -> str:
     """Point MLflow at the project's store and return the stage's experiment id."""
     uri = tracking_uri(layout)
-    mlflow.set_tracking_uri(uri)  # note: MLflow also exports this as MLFLOW_TRACKING_URI
+    mlflow.set_tracking_uri(uri)
+    if uri in _LOCAL_URIS:
+        # MLflow exports the URI for subprocesses to inherit; a child (a flow run, a test's
+        # subprocess) working on another data folder must not mistake it for a user's server
+        os.environ.pop("MLFLOW_TRACKING_URI", None)
     name = f"touch2robot/{stage}"
+    with _store_lock(layout) if uri.startswith("sqlite:") else nullcontext():
+        return _get_or_create(layout, name, stage, uri)
+
+
+@contextmanager
+def _store_lock(layout: DataLayout) -> Iterator[None]:
+    """Two processes opening a fresh SQLite store both run its schema migrations and one
+    fails; serialise the first touch of the store with a file lock."""
+    layout.root.mkdir(parents=True, exist_ok=True)
+    with open(layout.root / ".mlflow.db.lock", "a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)  # released when the file closes
+        yield
+
+
+def _get_or_create(layout: DataLayout, name: str, stage: str, uri: str) -> str:
     found = mlflow.get_experiment_by_name(name)
     if found is not None:
         return found.experiment_id
