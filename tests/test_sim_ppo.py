@@ -3,7 +3,10 @@ the mean episode return of a joint-trajectory tracking objective rises with trai
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import numpy as np
+import pytest
 import torch
 from rsl_rl.runners import OnPolicyRunner
 
@@ -36,6 +39,17 @@ def _mean_episode_return(runner: OnPolicyRunner, env: RslVecEnv) -> float:
     return float(total.mean())
 
 
+@pytest.fixture
+def one_torch_thread() -> Iterator[None]:
+    """One intra-op thread for the test: the networks are tiny, and two OpenMP threads contending
+    with the rollout threads and other processes on 2 cores made PPO updates 5-10x slower."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.mark.usefixtures("one_torch_thread")
 def test_ppo_mean_return_rises_on_joint_tracking() -> None:
     torch.manual_seed(0)
     env = make_vec_env("pick", JointTracking(), SimConfig(n_envs=32, seed=0), max_episode_length=EPISODE)
