@@ -121,6 +121,18 @@ def test_palm_pads_follow_the_glove_layout() -> None:
     assert c["P1"][1] > (index_y + ring_y) / 2 > c["P2"][1] - 0.02
 
 
+def test_palm_sensing_volumes_do_not_overlap() -> None:
+    model = mujoco.MjModel.from_xml_string(hand_mjcf())
+    boxes = []
+    for name in ("P1", "P2", "P3", "P4"):
+        site = model.site(f"{name}_zone")
+        np.testing.assert_allclose(site.quat, (1, 0, 0, 0))  # axis-aligned in the palm frame
+        boxes.append((site.pos - site.size, site.pos + site.size))
+    for i, (lo_a, hi_a) in enumerate(boxes):
+        for lo_b, hi_b in boxes[i + 1 :]:
+            assert (np.minimum(hi_a, hi_b) - np.maximum(lo_a, lo_b) <= 0).any()  # disjoint along some axis
+
+
 def test_urdf_parses_and_gives_the_same_fingertip_fk() -> None:
     model = _urdf_model()
     assert model.body(1).name == "base"

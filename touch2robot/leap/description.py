@@ -78,7 +78,7 @@ class Region:
 
     name: str
     box: Box
-    margin: float  # how far the sensing volume reaches past the box faces (contact points sit mid-penetration)
+    margin: Vec3  # how far the sensing volume reaches past the box faces, per box axis
 
 
 # --- joints ----------------------------------------------------------------------------------
@@ -176,16 +176,21 @@ PALM_PADS: dict[str, tuple[Vec3, Vec3]] = {  # name -> (centre xy-z in palm fram
 
 REGION_NAMES: tuple[str, ...] = ("T1", "T2", "T3", "T4", "P1", "P2", "P3", "P4")
 _TIP_BODY = {"T1": "th_ds", "T2": "if_ds", "T3": "mf_ds", "T4": "rf_ds"}
-REGION_MARGIN = 0.003
+# Touch sensors count contacts whose point lies in the sensing volume; MuJoCo puts the point midway
+# through the penetration, i.e. up to ~1 mm outside the pad, so the volume reaches 3 mm past the
+# faces that objects press. Fingertips are pressed on every face; palm pads on their outer face only,
+# laterally the volumes grow by less than half the 1 mm gap so that neighbouring pads never overlap.
+TIP_MARGIN: Vec3 = (0.003, 0.003, 0.003)
+PAD_MARGIN: Vec3 = (0.0004, 0.0004, 0.003)
 
 
 def _regions() -> tuple[Region, ...]:
     out = []
     for name, body in _TIP_BODY.items():
         pos, quat = _TIP_THUMB if body == "th_ds" else _TIP_FINGER
-        out.append(Region(name, Box(f"{name}_pad", body, _TIP_HALF, pos, quat), REGION_MARGIN))
+        out.append(Region(name, Box(f"{name}_pad", body, _TIP_HALF, pos, quat), TIP_MARGIN))
     for name, (pos, half) in PALM_PADS.items():
-        out.append(Region(name, Box(f"{name}_pad", "palm", half, pos), REGION_MARGIN))
+        out.append(Region(name, Box(f"{name}_pad", "palm", half, pos), PAD_MARGIN))
     return tuple(out)
 
 

@@ -73,7 +73,7 @@ def _add_body(parent: ET.Element, lk: hd.Link, children: dict[str, list[hd.Link]
         if box.body == lk.name:
             rgba = TIP_RGBA if region.name.startswith("T") else PAD_RGBA
             sub(body, "geom", name=box.name, type="box", size=box.half, pos=box.pos, quat=box.quat, rgba=rgba, **{"class": "leap_pad"})
-            half = np.asarray(box.half) + region.margin
+            half = np.asarray(box.half) + np.asarray(region.margin)
             sub(body, "site", name=f"{region.name}_zone", type="box", size=half, pos=box.pos, quat=box.quat, rgba=(0, 0, 0, 0), group="4")
     for site, (body_name, offset) in hd.TIP_SITES.items():
         if body_name == lk.name:
