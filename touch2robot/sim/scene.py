@@ -123,7 +123,7 @@ def scene_xml(spec: TaskSpec, cfg: SimConfig) -> str:
     sub(root, "statistic", center="0 0 0.05", extent="0.4")
     asset = section(root, "asset")
     sub(asset, "texture", name="grid", type="2d", builtin="checker", rgb1="0.82 0.78 0.72", rgb2="0.74 0.7 0.64", width="256", height="256")
-    sub(asset, "material", name="table", texture="grid", texrepeat="8 8", reflectance="0.05")
+    sub(asset, "material", name="table", texture="grid", texrepeat="8 8")
     sub(asset, "texture", name="sky", type="skybox", builtin="gradient", rgb1="0.6 0.7 0.8", rgb2="0.15 0.2 0.25", width="64", height="64")
     world = section(root, "worldbody")
     sub(world, "light", name="key", pos="0.3 -0.3 1.2", dir="-0.25 0.25 -1", diffuse="0.8 0.8 0.8", castshadow="false")
@@ -149,7 +149,7 @@ def scene_xml(spec: TaskSpec, cfg: SimConfig) -> str:
         sub(section(root, "contact"), "exclude", body1="cabinet", body2=OBJECT_BODY)
     _add_markers(world, spec)
     target = grasp_target(spec)
-    for name, offset in zip(CAMERAS, ((-0.25, 0.42, 0.30), (0.32, -0.38, 0.30))):
+    for name, offset in zip(CAMERAS, ((-0.25, 0.42, 0.30), (-0.06, -0.45, 0.32))):
         eye = target + np.asarray(offset)
         sub(world, "camera", name=name, pos=eye, xyaxes=look_at(eye, target + np.array([0.0, 0.0, 0.03])), fovy="55")
     wrist_pos, wrist_quat = home_wrist(spec)
