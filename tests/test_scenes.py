@@ -145,3 +145,52 @@ def test_render_saves_both_cameras_of_every_scene(tmp_path: Path) -> None:
         image = np.asarray(Image.open(path))
         assert image.shape == (64, 64, 3)
         assert image.std() > 10  # not a blank frame
+
+
+def _fingertip_ik(targets: dict[str, tuple[float, float, float]], q0: np.ndarray) -> np.ndarray:
+    """Joint angles (within limits) putting the given fingertip sites at palm-frame points."""
+    from scipy.optimize import least_squares
+
+    from touch2robot.leap import description as hd
+
+    joints = {lk.joint.name: lk.joint for lk in hd.LINKS if lk.joint is not None}
+    low = np.array([joints[n].lower for n in hd.JOINT_NAMES])
+    high = np.array([joints[n].upper for n in hd.JOINT_NAMES])
+
+    def residual(q: np.ndarray) -> np.ndarray:
+        tips = hd.tip_positions_in_palm(dict(zip(hd.JOINT_NAMES, q)))
+        return np.concatenate([tips[s] - t for s, t in targets.items()] + [0.01 * (q - q0)])
+
+    return least_squares(residual, q0, bounds=(low, high)).x
+
+
+def test_pick_box_can_be_grasped_and_lifted_by_the_servos() -> None:
+    """The spec's box (mass, friction) is liftable within the servos' 0.22 N·m: a scripted
+    thumb-index-middle grasp from above lifts it past the success lift height."""
+    from touch2robot.geometry import quat_to_mat
+    from touch2robot.leap import description as hd
+    from touch2robot.sim.env import BatchEnv
+
+    cfg = SimConfig(n_envs=1, threads=1)
+    env = BatchEnv(build_scene("pick", cfg), cfg)
+    centre = np.array([-0.04, -0.015, -0.085])  # where the box sits in the palm frame when grasped
+    q0 = np.array([0.8, 0.0, 0.8, 0.8] * 3 + [0.8, 0.8, 0.8, 0.0])
+
+    def grip(reach: float, lift: float = 0.0) -> np.ndarray:
+        c = centre + [0.0, 0.0, lift]
+        return _fingertip_ik({"if_tip": c + [reach, 0.02, 0.0], "mf_tip": c + [reach, -0.02, 0.0], "th_tip": c - [reach, 0.0, 0.0]}, q0)
+
+    q_open, q_close = grip(0.063, 0.01), grip(0.015)  # open around the 6 cm box; squeeze through it
+    wrist_rot, palm_rot = quat_to_mat(env.scene.home_wrist_quat), quat_to_mat(np.asarray(hd.PALM_IN_WRIST_QUAT))
+    at_box = np.asarray(env.scene.spec.object.init_pos) - wrist_rot @ (np.asarray(hd.PALM_IN_WRIST_POS) + palm_rot @ centre)
+    start = env.wrist_pos[0].copy()
+    for k in range(90):
+        if k < 35:  # approach from above, open
+            wrist, q = start + min(k / 20, 1.0) * (at_box + [0, 0, 0.04] - start) - [0, 0, 0.04 * max(k - 20, 0) / 15], q_open
+        elif k < 55:  # close
+            wrist, q = at_box, q_open + min((k - 35) / 15, 1.0) * (q_close - q_open)
+        else:  # lift 10 cm
+            wrist, q = at_box + [0, 0, 0.10 * min((k - 55) / 20, 1.0)], q_close
+        env.step(q[None], wrist[None])
+    assert env.tracker.max_lift[0] > scenes.get("pick").success["lift_m"]
+    assert env.region_contact[0, 0] and env.region_contact[0, 1:3].any()  # held by thumb and fingers
