@@ -1,34 +1,48 @@
-"""Headless still images of the task scenes from their two cameras."""
+"""Headless still images of the task scenes from their two cameras.
+
+MuJoCo picks its GL backend when ``mujoco`` is first imported, so this module chooses it at its
+own import (before it imports mujoco): import it, or set MUJOCO_GL, before anything else imports
+mujoco in a process that renders.
+"""
 
 from __future__ import annotations
 
+import ctypes.util
 import os
+import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from touch2robot.sim.config import SimConfig
-
 
 def select_gl_backend() -> str:
-    """Choose MuJoCo's headless GL backend before the renderer is imported: EGL if its library
-    loads, else OSMesa (software). An explicit MUJOCO_GL in the environment wins."""
+    """Choose MuJoCo's headless GL backend: EGL if its library is present, else OSMesa (software,
+    with a warning saying so). An explicit MUJOCO_GL in the environment wins."""
     if "MUJOCO_GL" not in os.environ:
-        import ctypes.util
-
-        os.environ["MUJOCO_GL"] = "egl" if ctypes.util.find_library("EGL") else "osmesa"
+        if "mujoco" in sys.modules:
+            warnings.warn("mujoco was imported before MUJOCO_GL was set: its default GL backend stays in use", stacklevel=2)
+        if ctypes.util.find_library("EGL"):
+            os.environ["MUJOCO_GL"] = "egl"
+        else:
+            warnings.warn("EGL is unavailable: rendering with OSMesa (software, slower)", stacklevel=2)
+            os.environ["MUJOCO_GL"] = "osmesa"
     if os.environ["MUJOCO_GL"] == "osmesa":
         os.environ.setdefault("PYOPENGL_PLATFORM", "osmesa")
     return os.environ["MUJOCO_GL"]
 
 
+GL_BACKEND = select_gl_backend()
+
+import mujoco  # noqa: E402 - after the backend choice, on purpose
+
+from touch2robot import scenes  # noqa: E402
+from touch2robot.sim.config import SimConfig  # noqa: E402
+from touch2robot.sim.scene import CAMERAS, build_scene  # noqa: E402
+
+
 def render_scene_images(task: str, width: int = 224, height: int = 224, cfg: SimConfig | None = None) -> dict[str, np.ndarray]:
     """RGB images (height, width, 3) of a task scene at its reset state, one per camera."""
-    select_gl_backend()
-    import mujoco
-
-    from touch2robot.sim.scene import CAMERAS, build_scene
-
     scene = build_scene(task, cfg)
     data = mujoco.MjData(scene.model)
     data.qpos[:] = scene.home_qpos
@@ -44,8 +58,6 @@ def render_scene_images(task: str, width: int = 224, height: int = 224, cfg: Sim
 def render_scenes(out_dir: Path, width: int = 224, height: int = 224) -> list[Path]:
     """Save ``<task>_<camera>.png`` for every registered task and both cameras; returns the paths."""
     from PIL import Image
-
-    from touch2robot import scenes
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
