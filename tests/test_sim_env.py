@@ -128,3 +128,13 @@ def test_config_rejects_inconsistent_rates_and_unknown_fields() -> None:
     with pytest.raises(ValueError):
         SimConfig(n_env=3)  # type: ignore[call-arg]
     assert SimConfig(control_hz=25.0, substeps=4).control_dt == pytest.approx(0.04)
+
+
+def test_reset_to_a_given_pose_reads_its_sensors() -> None:
+    env = _env(n=2)
+    wrist = env.scene.home_wrist_pos - [0.0, 0.0, 0.06]  # low enough that the thumb tip sits in the box
+    qpos = np.tile(env.home_state[env.layout.qpos], (1, 1))
+    env.reset(np.array([1]), qpos=qpos, wrist_pos=wrist[None])
+    np.testing.assert_allclose(env.wrist_pose[1, :3], wrist)
+    np.testing.assert_array_equal(env.sensordata[0], env.home_sensordata)
+    assert env.region_contact[1, 0] and not env.region_contact[0].any()

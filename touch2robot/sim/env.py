@@ -33,10 +33,12 @@ class StateLayout:
 
     @property
     def qpos(self) -> slice:
+        """Columns of qpos (after the time column)."""
         return slice(1, 1 + self.nq)
 
     @property
     def qvel(self) -> slice:
+        """Columns of qvel (after qpos)."""
         return slice(1 + self.nq, 1 + self.nq + self.nv)
 
 
@@ -136,16 +138,18 @@ class BatchEnv:
         self.joint_targets[ids] = self.home_state[self.layout.qpos][self.scene.hand_qpos] if joint_targets is None else joint_targets
         self.wrist_pos[ids] = self.scene.home_wrist_pos if wrist_pos is None else wrist_pos
         self.wrist_quat[ids] = self.scene.home_wrist_quat if wrist_quat is None else wrist_quat
-        if qpos is not None or wrist_pos is not None:
-            # the free wrist starts where its mocap target is
-            adr = self.scene.wrist_qpos
-            self.state[ids, 1 + adr : 1 + adr + 3] = self.wrist_pos[ids]
-            self.state[ids, 1 + adr + 3 : 1 + adr + 7] = self.wrist_quat[ids]
-        if qpos is None:
+        if qpos is None and wrist_pos is None and wrist_quat is None:
             self.sensordata[ids] = self.home_sensordata
-        else:  # sensors of a new configuration need its contacts: one forward pass per reset copy
+        else:
+            # the free wrist starts where its mocap target is
+            adr = 1 + self.scene.wrist_qpos
+            self.state[ids, adr : adr + 3] = self.wrist_pos[ids]
+            self.state[ids, adr + 3 : adr + 7] = self.wrist_quat[ids]
+            # sensors of a new configuration need its contacts: one forward pass per reset copy
             for i in ids:
                 mujoco.mj_setState(self.model, self._scratch, self.state[i], STATE_SPEC)
+                self._scratch.mocap_pos[0], self._scratch.mocap_quat[0] = self.wrist_pos[i], self.wrist_quat[i]
+                self._scratch.ctrl[:] = self.joint_targets[i]
                 mujoco.mj_forward(self.model, self._scratch)
                 self.sensordata[i] = self._scratch.sensordata
         self.time_step[ids] = 0
