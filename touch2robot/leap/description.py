@@ -238,8 +238,8 @@ CAPSULES: tuple[Capsule, ...] = (
     Capsule("th_ds", (-0.0823, 0.0800, -0.0219), (-0.0823, 0.0940, -0.0219), 0.010),
 )
 
-# Collision exclusions (Menagerie and Playground): the palm may touch only the distal links; the
-# finger bases overlap each other and the thumb metacarpal by construction.
+# Collision exclusions (Menagerie and Playground, plus one of ours): the palm may touch only the
+# distal links; the finger bases overlap each other and the thumb metacarpal by construction.
 EXCLUDES: tuple[tuple[str, str], ...] = (
     *(("palm", f"{f}_{b}") for f in FINGERS for b in ("bs", "px", "md")),
     ("palm", "th_mp"),
@@ -249,6 +249,9 @@ EXCLUDES: tuple[tuple[str, str], ...] = (
     ("if_bs", "rf_bs"),
     ("mf_bs", "rf_bs"),
     *(("th_mp", f"{f}_bs") for f in FINGERS),
+    # ours only: the capsules of the thumb metacarpal and proximal links (one link apart) overlap
+    # around the tiny th_bs link over half the joint space, where the real servo brackets clear
+    ("th_mp", "th_px"),
 )
 
 
