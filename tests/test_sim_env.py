@@ -138,3 +138,22 @@ def test_reset_to_a_given_pose_reads_its_sensors() -> None:
     np.testing.assert_allclose(env.wrist_pose[1, :3], wrist)
     np.testing.assert_array_equal(env.sensordata[0], env.home_sensordata)
     assert env.region_contact[1, 0] and not env.region_contact[0].any()
+
+
+def test_wrist_follows_a_world_pose_trajectory() -> None:
+    from touch2robot.geometry import quat_from_axis_angle, quat_mul
+    from touch2robot.sim.success import twist_angle
+
+    env = _env("pick", n=1)
+    start, quat0 = env.scene.home_wrist_pos, env.scene.home_wrist_quat
+    errors, angle_errors = [], []
+    for k in range(40):  # a 4 cm circle in 2 s while turning 60 degrees about the vertical
+        t = (k + 1) * env.cfg.control_dt
+        pos = start + 0.04 * np.array([np.cos(np.pi * t) - 1.0, np.sin(np.pi * t), 0.0]) + [0.0, 0.0, 0.02]
+        yaw = np.pi / 3 * t / 2.0
+        quat = quat_mul(quat_from_axis_angle(np.array([0.0, 0.0, 1.0]), yaw), quat0)
+        env.step(env.joint_targets, pos[None], quat[None])
+        errors.append(np.linalg.norm(env.wrist_pose[0, :3] - pos))
+        angle_errors.append(abs(twist_angle(env.wrist_pose[0, 3:], quat0, np.array([0.0, 0.0, 1.0])) - yaw))
+    print(f"wrist tracking error while moving: {max(errors[5:]) * 1e3:.1f} mm, {np.degrees(max(angle_errors[5:])):.2f} deg")
+    assert max(errors[5:]) < 0.01 and max(angle_errors[5:]) < np.radians(3)  # within 1 cm / 3 deg while moving
