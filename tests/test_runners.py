@@ -75,8 +75,7 @@ PROBE = textwrap.dedent(
             remote = build_task_runner(RunnerConfig(kind="dask", dask_address="tcp://scheduler:8786"))
             out["remote"] = [type(remote).__name__, remote.address]
         out["dask"] = fan_out(6)
-        profile = sys.argv[1]
-        out["by_profile"] = by_profile(profile) if profile else None
+        out["by_profile"] = by_profile(sys.argv[1])
         print("RESULT " + json.dumps(out))
 
     # Dask starts its workers with the spawn method, which re-imports this script
@@ -86,23 +85,14 @@ PROBE = textwrap.dedent(
 )
 
 
-def profile_runner_wired() -> bool:
-    """Whether the profile model has its ``runner`` section yet (wired in touch2robot/config.py)."""
-    from touch2robot.config import Profile
-
-    return "runner" in Profile.model_fields
-
-
 @pytest.fixture(scope="module")
 def probe(tmp_path_factory: pytest.TempPathFactory) -> dict:
     """Run PROBE once (about a minute: Prefect's embedded API and a LocalCluster start)."""
     tmp = tmp_path_factory.mktemp("runners")
     script = tmp / "probe.py"
     script.write_text(PROBE)
-    profile = ""
-    if profile_runner_wired():
-        profile = str(tmp / "threads3.yaml")
-        Path(profile).write_text("name: threads3\nrunner:\n  kind: threads\n  max_workers: 3\n")
+    profile = str(tmp / "threads3.yaml")
+    Path(profile).write_text("name: threads3\nrunner:\n  kind: threads\n  max_workers: 3\n")
     env = {
         **os.environ,
         "TOUCH2ROBOT_DATA": str(tmp / "data"),
@@ -174,8 +164,6 @@ def test_fan_out_runs_on_dask_workers(probe: dict) -> None:
 
 @pytest.mark.slow
 def test_profile_names_the_runner(probe: dict) -> None:
-    if probe["by_profile"] is None:
-        pytest.skip("touch2robot.config.Profile has no `runner: RunnerConfig` section yet (see infra/README.md, section 5)")
     assert probe["by_profile"]["runner"] == "ThreadPoolTaskRunner"
     assert probe["by_profile"]["max_workers"] == 3
     assert probe["by_profile"]["pid"] == probe["flow_pid"]
