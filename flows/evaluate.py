@@ -28,7 +28,7 @@ def evaluate(profile: str = "smoke", data: str | None = None, ratings: str | Non
     sources = evaluated_sources(layout.lake, reference)
     digests = [folder_digest(source_folders(layout.lake, s, reference)) for s in sources]
     per_source = [f.result() for f in stored(evaluate_source, layout.results).map(unmapped(lake), sources, unmapped(reference), digests)]
-    paths = [str(p) for p in ratings_files(Path(ratings) if ratings else layout.recordings / "user_study")]
+    paths = [str(p) for p in ratings_files(Path(ratings) if ratings else layout.user_study)]
     shas = [file_digest(p) for p in paths]
     studies = [f.result() for f in stored(evaluate_ratings, layout.results).map(paths, shas)]
 

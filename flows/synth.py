@@ -20,7 +20,7 @@ def synth(profile: str = "smoke", data: str | None = None) -> list[str]:
     config = load_profile(profile).synth
     write = stored(synthesize_recording, layout.results)
     futures = write.map(unmapped(config), plan(config), unmapped(str(layout.recordings)), unmapped(str(layout.groundtruth)))
-    ratings = stored(synthesize_ratings, layout.results).submit(str(layout.recordings / "user_study" / "ratings_SYNTHETIC.csv"), config.seed)
+    ratings = stored(synthesize_ratings, layout.results).submit(str(layout.synthetic_ratings), config.seed)
     paths = [f.result() for f in futures]
     ratings.result()
     print(f"{len(paths)} recordings in {layout.recordings}")

@@ -24,6 +24,18 @@ TASKS: tuple[str, ...] = ("pick", "rotate", "wipe", "drawer")
 
 RECORDING_KINDS: tuple[str, ...] = ("glove_session", "robot_replay", "robot_calibration")
 
+def _stream(column: str, width: int) -> pa.Schema:
+    """A sensor stream of one recording: its id, the time in seconds since the recording's
+    first message, and a fixed-width float32 array per sample."""
+    return pa.schema(
+        [
+            pa.field("recording_id", pa.string(), nullable=False),
+            pa.field("t", pa.float64(), nullable=False),
+            pa.field(column, pa.list_(pa.float32(), width), nullable=False),
+        ]
+    )
+
+
 recordings = pa.schema(
     [
         pa.field("recording_id", pa.string(), nullable=False),  # sha256 of the file content (first 16 hex)
@@ -47,30 +59,12 @@ recordings = pa.schema(
 )
 
 # --- Streams of glove sessions -------------------------------------------------
-taxels = pa.schema(
-    [
-        pa.field("recording_id", pa.string(), nullable=False),
-        pa.field("t", pa.float64(), nullable=False),  # seconds since the recording's first message
-        pa.field("values", pa.list_(pa.float32(), 256), nullable=False),
-    ]
-)
+taxels = _stream("values", 256)
 
-hand_joints = pa.schema(
-    [
-        pa.field("recording_id", pa.string(), nullable=False),
-        pa.field("t", pa.float64(), nullable=False),
-        pa.field("position", pa.list_(pa.float32(), 20), nullable=False),
-    ]
-)
+hand_joints = _stream("position", 20)
 
-hand_keypoints = pa.schema(
-    [
-        pa.field("recording_id", pa.string(), nullable=False),
-        pa.field("t", pa.float64(), nullable=False),
-        # 21 keypoints x (x, y, z) in the world frame, row-major (wrist, then 4 per finger thumb..little)
-        pa.field("xyz", pa.list_(pa.float32(), 63), nullable=False),
-    ]
-)
+# 21 keypoints x (x, y, z) in the world frame, row-major (wrist, then 4 per finger thumb..little)
+hand_keypoints = _stream("xyz", 63)
 
 POSE_FIELDS = [
     pa.field("recording_id", pa.string(), nullable=False),
@@ -97,29 +91,11 @@ robot_joint_states = pa.schema(
     ]
 )
 
-robot_joint_targets = pa.schema(
-    [
-        pa.field("recording_id", pa.string(), nullable=False),
-        pa.field("t", pa.float64(), nullable=False),
-        pa.field("position", pa.list_(pa.float32(), 16), nullable=False),
-    ]
-)
+robot_joint_targets = _stream("position", 16)
 
-twintac = pa.schema(
-    [
-        pa.field("recording_id", pa.string(), nullable=False),
-        pa.field("t", pa.float64(), nullable=False),
-        pa.field("values", pa.list_(pa.float32(), 16), nullable=False),
-    ]
-)
+twintac = _stream("values", 16)
 
-fsr = pa.schema(
-    [
-        pa.field("recording_id", pa.string(), nullable=False),
-        pa.field("t", pa.float64(), nullable=False),
-        pa.field("values", pa.list_(pa.float32(), 4), nullable=False),
-    ]
-)
+fsr = _stream("values", 4)
 
 time_map = pa.schema(
     [

@@ -102,7 +102,6 @@ def test_sigkill_midway_then_rerun_resumes_from_cache(smoke_data: Path, tmp_path
     finally:
         _kill_group(proc)
     done_before = len(list(results.iterdir()))
-    assert not list((data / "lake").rglob("*.tmp")) or True  # temp files may remain; readers ignore them
     out = _run(data)
     assert out.count("Finished in state Cached") >= min(done_before, 3), out[-3000:]
     from touch2robot import catalog

@@ -58,7 +58,7 @@ def synth(profile: ProfileOpt = "smoke", data: DataOpt = None) -> None:
             bar.update(task, description=job.stem)
             write_recording(config, job, layout.recordings, layout.groundtruth)
             bar.advance(task)
-    write_ratings_csv(layout.recordings / "user_study" / "ratings_SYNTHETIC.csv", seed=config.seed)
+    write_ratings_csv(layout.synthetic_ratings, seed=config.seed)
     console.print(f"{len(jobs)} recordings in {layout.recordings}")
 
 

@@ -64,6 +64,15 @@ class DataLayout:
         return self.root / "prefect" / "results"
 
     @property
+    def user_study(self) -> Path:
+        """Folder of user-study ratings files (the demonstrator writes a SYNTHETIC example)."""
+        return self.recordings / "user_study"
+
+    @property
+    def synthetic_ratings(self) -> Path:
+        return self.user_study / "ratings_SYNTHETIC.csv"
+
+    @property
     def reports(self) -> Path:
         return self.root / "reports"
 

@@ -68,9 +68,10 @@ def replay_contacts(
     fsr = _read(lake, "fsr", rid)
     tmap = _read(lake, "time_map", rid)
     map_t, map_ref = tmap["t"].to_numpy(), tmap["t_ref"].to_numpy()
-    tips, palm = real_contacts(_matrix(twintac, "values"), threshold, _matrix(fsr, "values"), config)
+    tt_raw, fsr_raw = _matrix(twintac, "values"), _matrix(fsr, "values")
+    tips, palm = real_contacts(tt_raw, threshold, fsr_raw, config)
     t_tt, t_fsr = twintac["t"].to_numpy(), fsr["t"].to_numpy()
-    tt_values = _matrix(twintac, "values") - mean
+    tt_values = tt_raw - mean
     tip_value = np.stack([tt_values[:, 4 * k : 4 * k + 4].max(axis=1) for k in range(4)], 1)
     common = dict(
         source="real", method=replay["method"], task=replay["task"], subject=replay["subject"],
@@ -79,7 +80,7 @@ def replay_contacts(
     rows = pa.concat_tables(
         [
             long_rows(**common, t=t_tt, t_ref=np.interp(t_tt, map_t, map_ref), regions=ROBOT_REGIONS[:4], contact=tips, value=tip_value),
-            long_rows(**common, t=t_fsr, t_ref=np.interp(t_fsr, map_t, map_ref), regions=ROBOT_REGIONS[4:], contact=palm, value=_matrix(fsr, "values")),
+            long_rows(**common, t=t_fsr, t_ref=np.interp(t_fsr, map_t, map_ref), regions=ROBOT_REGIONS[4:], contact=palm, value=fsr_raw),
         ]
     )
     n = len(threshold)

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from schemas.glove import FINGERTIP_TAXELS, PALM_TAXELS
 from touch2robot import geometry
 from touch2robot.scenes import TaskSpec
 from touch2robot.scenes.spec import GeomSpec
@@ -194,8 +195,8 @@ def close_fingers(
 
 
 def _finger_taxels(f: int) -> np.ndarray:
-    from schemas.glove import FINGERTIP_TAXELS, PALM_TAXELS
-
+    """Taxels of finger ``f`` that may touch while it closes: its tip pad and, for the four
+    fingers, the proximal-phalanx taxels."""
     tip = np.arange(f * FINGERTIP_TAXELS, (f + 1) * FINGERTIP_TAXELS)
     if f == 0:
         return tip
