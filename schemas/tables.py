@@ -220,6 +220,41 @@ retargeted = pa.schema(
     ]
 )
 
+# --- Robot trajectories in simulation (flow `teachers`; one file per method x task) ---------
+# One row per control step (20 Hz) of a rollout: the state observed at ``t`` and the command
+# applied from it (LeRobot's frame convention: observation and action of the same frame).
+# ``origin`` says what produced the commands: "teacher" (a trained PPO teacher, deterministic
+# actions: touch2robot, contrack, dexmachina), "kinematic" (dex-retargeting: the kinematic
+# trajectory replayed with no residual) or "student" (touch2robot's distilled student on a
+# held-out demonstration). Row 0 of a rollout is its reset state, so replaying the commands from
+# it in the same scene reproduces the rollout. Files: lake/rollouts/method=<m>/<origin>-<task>.parquet
+ROLLOUT_METHODS: tuple[str, ...] = ("touch2robot", "contrack", "dexmachina", "dex-retargeting")
+ROLLOUT_ORIGINS: tuple[str, ...] = ("teacher", "kinematic", "student")
+
+rollouts = pa.schema(
+    [
+        pa.field("rollout_id", pa.string(), nullable=False),  # "<origin>-<method>-<task>-<index:03d>"
+        pa.field("origin", pa.string(), nullable=False),  # one of ROLLOUT_ORIGINS
+        pa.field("method", pa.string(), nullable=False),
+        pa.field("task", pa.string(), nullable=False),
+        pa.field("subject", pa.string(), nullable=False),
+        pa.field("reference_id", pa.string(), nullable=False),  # the glove recording followed
+        pa.field("step", pa.int32(), nullable=False),  # control step since reset
+        pa.field("t", pa.float64(), nullable=False),  # s since the rollout's reset
+        pa.field("t_ref", pa.float64(), nullable=False),  # s on the reference recording's clock
+        pa.field("joint_position", pa.list_(pa.float32(), 16), nullable=False),  # LEAP joints (rad), LEAP_JOINT_NAMES order
+        pa.field("joint_velocity", pa.list_(pa.float32(), 16), nullable=False),
+        pa.field("joint_target", pa.list_(pa.float32(), 16), nullable=False),  # command applied from this state
+        pa.field("reference_joints", pa.list_(pa.float32(), 16), nullable=False),  # kinematic retargeting at t_ref
+        pa.field("wrist_pose", pa.list_(pa.float64(), 7), nullable=False),  # commanded wrist (mocap) pose: px py pz qw qx qy qz
+        pa.field("object_pose", pa.list_(pa.float64(), 7), nullable=False),  # object body pose in the world
+        pa.field("drawer_opening", pa.float64(), nullable=False),  # slide travel (m); 0 for free objects
+        pa.field("region_force", pa.list_(pa.float32(), 8), nullable=False),  # N on T1..T4, P1..P4
+        pa.field("progress", pa.float32(), nullable=False),  # task progress in [0, 1]
+        pa.field("success", pa.bool_(), nullable=False),  # the task's success criterion so far
+    ]
+)
+
 SCHEMAS: dict[str, pa.Schema] = {
     "recordings": recordings,
     "taxels": taxels,
@@ -238,9 +273,11 @@ SCHEMAS: dict[str, pa.Schema] = {
     "onset_errors": onset_errors,
     "user_study": user_study,
     "retargeted": retargeted,
+    "rollouts": rollouts,
 }
 
 # Hive partition columns per table (directory levels under lake/<table>/).
 PARTITIONS: dict[str, tuple[str, ...]] = {
     "contacts": ("source", "task"),
+    "rollouts": ("method",),
 }
