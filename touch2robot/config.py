@@ -14,6 +14,7 @@ from touch2robot.contacts.config import ContactsConfig
 from touch2robot.retarget.config import RetargetConfig
 from touch2robot.runner_config import RunnerConfig
 from touch2robot.synth.config import SynthConfig
+from touch2robot.teachers.config import TeacherConfig
 
 BUILTIN_PROFILES = ("smoke", "local", "paper")
 
@@ -29,10 +30,20 @@ class Profile(BaseModel):
     contacts: ContactsConfig = ContactsConfig()
     retarget: RetargetConfig = RetargetConfig()
     runner: RunnerConfig = RunnerConfig()
+    teacher: TeacherConfig = TeacherConfig()
 
 
 class ProfileError(ValueError):
     """A profile file that cannot be read or validated; the message names the file and field."""
+
+
+def _merged(defaults: dict, overrides: dict) -> dict:
+    """``overrides`` deep-merged onto ``defaults``: a profile that sets one key of a nested
+    section (say one reward weight of one method) keeps every other default of that section."""
+    out = dict(defaults)
+    for key, value in overrides.items():
+        out[key] = _merged(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
 
 
 def load_profile(name_or_path: str | Path) -> Profile:
@@ -54,7 +65,7 @@ def load_profile(name_or_path: str | Path) -> Profile:
     if not isinstance(data, dict):
         raise ProfileError(f"{origin}: expected a mapping of stage sections, got {type(data).__name__}")
     try:
-        return Profile.model_validate(data)
+        return Profile.model_validate(_merged(Profile().model_dump(), data))
     except ValidationError as e:
         fields = "; ".join(f"{'.'.join(map(str, err['loc']))}: {err['msg']}" for err in e.errors())
         raise ProfileError(f"{origin}: {fields}") from None

@@ -69,8 +69,13 @@ def _get_or_create(layout: DataLayout, name: str, stage: str, uri: str) -> str:
 
 
 @contextmanager
-def stage_run(layout: DataLayout, stage: str, run_name: str, tags: dict[str, str] | None = None) -> Iterator[mlflow.ActiveRun]:
-    """An MLflow run in the stage's experiment."""
+def stage_run(layout: DataLayout, stage: str, run_name: str, tags: dict[str, str] | None = None, run_id: str | None = None) -> Iterator[mlflow.ActiveRun]:
+    """An MLflow run in the stage's experiment; ``run_id`` continues an earlier run (a resumed
+    training keeps one run and one set of curves)."""
     exp = experiment(layout, stage)
+    if run_id is not None:
+        with mlflow.start_run(run_id=run_id) as run:
+            yield run
+        return
     with mlflow.start_run(experiment_id=exp, run_name=run_name, tags={"stage": stage, **(tags or {})}) as run:
         yield run

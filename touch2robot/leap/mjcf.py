@@ -107,6 +107,8 @@ def add_hand(root: ET.Element, wrist_pos: np.ndarray, wrist_quat: np.ndarray) ->
     sensor = section(root, "sensor")
     for region in hd.REGION_NAMES:
         sub(sensor, "touch", name=f"{REGION_SENSOR_PREFIX}{region}", site=f"{region}_zone")
+    for region in hd.REGION_NAMES:  # where each region is: contact-position rewards aim these at object points
+        sub(sensor, "framepos", name=f"{region}_zone_pos", objtype="site", objname=f"{region}_zone")
     for site in hd.TIP_SITES:
         sub(sensor, "framepos", name=f"{site}_pos", objtype="site", objname=site)
 

@@ -21,7 +21,10 @@ from touch2robot.sim.scene import Scene
 from touch2robot.sim.success import SuccessTracker
 
 STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
-CONTROL_SPEC = mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_MOCAP_POS | mujoco.mjtState.mjSTATE_MOCAP_QUAT
+# control vector per substep, in MuJoCo's component order: ctrl (nu), qfrc_applied (nv), mocap pos (3), quat (4)
+CONTROL_SPEC = (
+    mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_QFRC_APPLIED | mujoco.mjtState.mjSTATE_MOCAP_POS | mujoco.mjtState.mjSTATE_MOCAP_QUAT
+)
 
 
 @dataclass(frozen=True)
@@ -79,7 +82,7 @@ class BatchEnv:
         self.joint_targets = np.tile(home.ctrl, (self.n, 1))
         self.wrist_pos = np.tile(scene.home_wrist_pos, (self.n, 1))
         self.wrist_quat = np.tile(scene.home_wrist_quat, (self.n, 1))
-        self._control = np.empty((self.n, cfg.substeps, self.model.nu + 7))
+        self._control = np.zeros((self.n, cfg.substeps, self.model.nu + self.model.nv + 7))
         self._state_out = np.empty((self.n, cfg.substeps, self.nstate))
         self._sensor_out = np.empty((self.n, cfg.substeps, self.model.nsensordata))
         self.sensordata = np.tile(self.home_sensordata, (self.n, 1))
@@ -95,18 +98,25 @@ class BatchEnv:
         self._rollout.close()
 
     # ------------------------------------------------------------------ stepping
-    def step(self, joint_targets: np.ndarray, wrist_pos: np.ndarray | None = None, wrist_quat: np.ndarray | None = None) -> None:
-        """Advance all copies by one control step. Targets are clipped to the joint ranges."""
+    def step(self, joint_targets: np.ndarray, wrist_pos: np.ndarray | None = None, wrist_quat: np.ndarray | None = None,
+             object_force: np.ndarray | None = None) -> None:  # fmt: skip
+        """Advance all copies by one control step. Targets are clipped to the joint ranges.
+        ``object_force`` (N, 6) for a free object (world force, then torque in the object's
+        frame) or (N, 1) for the drawer slide is a generalised force on the object's joint,
+        held over the step (DexMachina's virtual object assistance); None = no force."""
         self.joint_targets = np.clip(np.asarray(joint_targets, dtype=np.float64), self.ctrl_low, self.ctrl_high)
         if wrist_pos is not None:
             self.wrist_pos = np.asarray(wrist_pos, dtype=np.float64)
         if wrist_quat is not None:
             q = np.asarray(wrist_quat, dtype=np.float64)
             self.wrist_quat = q / np.linalg.norm(q, axis=-1, keepdims=True)
-        nu = self.model.nu
+        nu, nv = self.model.nu, self.model.nv
         self._control[:, :, :nu] = self.joint_targets[:, None, :]
-        self._control[:, :, nu : nu + 3] = self.wrist_pos[:, None, :]
-        self._control[:, :, nu + 3 :] = self.wrist_quat[:, None, :]
+        dof = self.scene.object_dof
+        width = 1 if self.scene.is_drawer else 6
+        self._control[:, :, nu + dof : nu + dof + width] = 0.0 if object_force is None else np.asarray(object_force)[:, None, :]
+        self._control[:, :, nu + nv : nu + nv + 3] = self.wrist_pos[:, None, :]
+        self._control[:, :, nu + nv + 3 :] = self.wrist_quat[:, None, :]
         self._rollout.rollout(
             self._models,
             self._datas,
@@ -239,6 +249,17 @@ class BatchEnv:
     def region_contact(self) -> np.ndarray:
         """(N, 8) binary contact: region force above the configured threshold (0.5 N)."""
         return self.region_force > self.cfg.contact_threshold_n
+
+    @property
+    def region_pos(self) -> np.ndarray:
+        """(N, 8, 3) world positions of the centres of the tactile regions T1..T4, P1..P4."""
+        return self.sensordata[:, self.scene.region_pos_sensors]
+
+    @property
+    def object_vel(self) -> np.ndarray:
+        """(N, 6) free object: world linear velocity, then angular velocity in its frame; (N, 1) drawer slide speed."""
+        dof = self.scene.object_dof
+        return self.qvel[:, dof : dof + (1 if self.scene.is_drawer else 6)]
 
     @property
     def fingertip_pos(self) -> np.ndarray:

@@ -24,8 +24,9 @@ class Objective(Protocol):
     def reset(self, env: BatchEnv, ids: np.ndarray, rng: np.random.Generator) -> None:
         """Reset copies ``ids`` (env.reset plus the objective's own per-copy state)."""
 
-    def command(self, env: BatchEnv, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
-        """Policy actions (N, num_actions) -> (joint targets (N, 16), wrist pos, wrist quat)."""
+    def command(self, env: BatchEnv, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+        """Policy actions (N, num_actions) -> the arguments of ``BatchEnv.step``: joint targets
+        (N, 16), wrist pos, wrist quat, object force (None = unchanged / none)."""
 
     def observe(self, env: BatchEnv) -> dict[str, np.ndarray]:
         """Observation groups, e.g. {"actor": (N, d_a), "critic": (N, d_c)}."""
@@ -35,6 +36,12 @@ class Objective(Protocol):
 
     def terminated(self, env: BatchEnv) -> np.ndarray:
         """(N,) bool: episodes that end early (e.g. tracking lost)."""
+
+    def truncated(self, env: BatchEnv) -> np.ndarray:
+        """(N,) bool: episodes cut by time (their reference ends); PPO bootstraps these."""
+
+    def episode_end(self, env: BatchEnv, ids: np.ndarray) -> dict[str, float]:
+        """Called with the copies whose episodes end, before their reset; figures to log."""
 
 
 class RslVecEnv(VecEnv):
@@ -68,12 +75,11 @@ class RslVecEnv(VecEnv):
 
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
         a = actions.detach().cpu().numpy().astype(np.float64)
-        targets, wrist_pos, wrist_quat = self.objective.command(self.env, a)
-        self.env.step(targets, wrist_pos, wrist_quat)
+        self.env.step(*self.objective.command(self.env, a))
         self.episode_length_buf += 1
         reward, terms = self.objective.reward(self.env, a)
         terminated = self.objective.terminated(self.env)
-        time_outs = (self.episode_length_buf >= self.max_episode_length).cpu().numpy()
+        time_outs = (self.episode_length_buf >= self.max_episode_length).cpu().numpy() | self.objective.truncated(self.env)
         done = terminated | time_outs
         log = {f"reward/{k}": float(np.mean(v)) for k, v in terms.items()}
         log["contact/any_region"] = float(self.env.region_contact.any(axis=1).mean())
@@ -81,6 +87,7 @@ class RslVecEnv(VecEnv):
         if ids.size:  # task outcome of the episodes that end here, read before their reset
             log["task/success"] = float(self.env.success[ids].mean())
             log["task/progress"] = float(self.env.progress[ids].mean())
+            log.update(self.objective.episode_end(self.env, ids))
             self.objective.reset(self.env, ids, self.rng)
             self.episode_length_buf[torch.as_tensor(ids, device=self.device)] = 0
         extras = {"time_outs": torch.as_tensor(time_outs & ~terminated, device=self.device), "log": log}
@@ -129,9 +136,9 @@ class JointTracking:
         self.phase[ids] = rng.uniform(0, 2 * np.pi, (ids.size, 16))
         env.reset(ids)
 
-    def command(self, env: BatchEnv, actions: np.ndarray) -> tuple[np.ndarray, None, None]:
+    def command(self, env: BatchEnv, actions: np.ndarray) -> tuple[np.ndarray, None, None, None]:
         """Next reference plus a bounded residual; the wrist stays where it is."""
-        return self._reference(env, 1) + self.action_scale * np.clip(actions, -1.0, 1.0), None, None
+        return self._reference(env, 1) + self.action_scale * np.clip(actions, -1.0, 1.0), None, None, None
 
     def observe(self, env: BatchEnv) -> dict[str, np.ndarray]:
         """Joint state and the next two reference frames, the same for actor and critic."""
@@ -147,3 +154,11 @@ class JointTracking:
     def terminated(self, env: BatchEnv) -> np.ndarray:
         """Tracking never ends early: episodes only time out."""
         return np.zeros(env.n, dtype=bool)
+
+    def truncated(self, env: BatchEnv) -> np.ndarray:
+        """No reference end: the env's max episode length cuts episodes."""
+        return np.zeros(env.n, dtype=bool)
+
+    def episode_end(self, env: BatchEnv, ids: np.ndarray) -> dict[str, float]:
+        """Nothing to update between episodes."""
+        return {}

@@ -46,6 +46,10 @@ class Scene:
     object_qpos: int  # first qpos address of the object's free joint, or of the drawer slide
     region_sensors: np.ndarray  # (8,) sensordata addresses of the touch sensors T1..T4, P1..P4
     tip_sensors: np.ndarray  # (4, 3) sensordata addresses of th/if/mf/rf fingertip positions
+    region_pos_sensors: np.ndarray  # (8, 3) sensordata addresses of the regions' centre positions
+    object_dof: int  # first dof address of the object's free joint (6 dofs) or of the drawer slide (1)
+    object_mass: float  # kg
+    object_inertia: float  # mean principal moment of inertia, kg m^2
     home_qpos: np.ndarray  # (nq,) initial configuration
     home_wrist_pos: np.ndarray  # (3,) world
     home_wrist_quat: np.ndarray  # (4,) world
@@ -192,6 +196,10 @@ def build_scene(task: str | TaskSpec, cfg: SimConfig | None = None) -> Scene:
         object_qpos=int(model.jnt_qposadr[obj_joint.id]),
         region_sensors=np.array([model.sensor_adr[s.id] for s in sensors]),
         tip_sensors=np.array([model.sensor_adr[s.id] + np.arange(3) for s in tips]),
+        region_pos_sensors=np.array([model.sensor_adr[model.sensor(f"{r}_zone_pos").id] + np.arange(3) for r in hd.REGION_NAMES]),
+        object_dof=int(model.jnt_dofadr[obj_joint.id]),
+        object_mass=float(model.body_mass[model.body(OBJECT_BODY).id]),
+        object_inertia=float(model.body_inertia[model.body(OBJECT_BODY).id].mean()),
         home_qpos=home,
         home_wrist_pos=wrist_pos,
         home_wrist_quat=wrist_quat,

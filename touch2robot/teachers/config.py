@@ -1,0 +1,129 @@
+"""Configuration of the teachers: PPO (Table VII), the reward terms, and the method variants.
+
+Every method shares one objective (``touch2robot.teachers.objective.DemoTracking``); a method is a
+set of reward weights plus at most one switch of its own (ConTrack's adaptive trade-off,
+DexMachina's virtual object assistance). The paper values are the defaults.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from schemas.tables import TASKS
+from touch2robot.sim.config import SimConfig
+
+TeacherMethod = Literal["touch2robot", "contrack", "dexmachina"]
+TEACHER_METHODS: tuple[str, ...] = ("touch2robot", "contrack", "dexmachina")
+
+
+class _Frozen(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class PPOConfig(_Frozen):
+    """rsl-rl-lib's OnPolicyRunner / PPO settings (Table VII)."""
+
+    num_steps_per_env: int = Field(512, ge=1, description="rollout length per env per iteration")
+    max_iterations: int = Field(1500, ge=1, description="PPO iterations per teacher")
+    num_mini_batches: int = Field(4, ge=1)
+    num_learning_epochs: int = Field(5, ge=1)
+    hidden_dims: tuple[int, ...] = (1024, 1024, 512)
+    activation: str = "elu"
+    learning_rate: float = Field(3e-4, gt=0)
+    clip_param: float = Field(0.2, gt=0)
+    max_grad_norm: float = Field(1.0, gt=0)
+    gamma: float = Field(0.96, gt=0, le=1)
+    lam: float = Field(0.95, gt=0, le=1)
+    init_noise_std: float = Field(0.8, gt=0)
+    desired_kl: float = Field(0.016, gt=0)
+    entropy_coef: float = Field(0.0, ge=0)
+    value_loss_coef: float = Field(1.0, ge=0)
+    schedule: Literal["adaptive", "fixed"] = "adaptive"
+    save_interval: int = Field(50, ge=1, description="iterations between checkpoints (each one an MLflow artefact)")
+
+
+class RewardWeights(_Frozen):
+    """Weights of the named reward terms (0 switches a term off). Each term is logged alone."""
+
+    object_pos: float = 1.0  # exp(-|p - p_ref| / sigma_pos); drawer: opening error instead
+    object_rot: float = 0.5  # exp(-angle(q, q_ref) / sigma_rot); not for the drawer
+    imitation: float = 0.5  # exp(-|q_hand - q_ref|^2 / sigma_joint)
+    tactile: float = 0.0  # touch2robot: per-step F1 of the 8 sim contacts vs the human preference
+    contact: float = 0.0  # contrack / dexmachina: regions reach their geometric contact points
+    action_rate: float = 0.05  # -|a_t - a_(t-1)|^2 / 16
+    energy: float = 0.002  # -sum |servo torque x joint speed|
+    termination: float = 2.0  # one-off penalty when tracking is lost
+
+
+class ContrackConfig(_Frozen):
+    """ConTrack's adaptive task-style trade-off: maximise style (imitation + contact) subject to an
+    object-tracking return >= ``alpha`` x the best return so far on the clip, by dual ascent on a
+    per-clip multiplier (reward = (style + lambda task) / (1 + lambda))."""
+
+    enabled: bool = False
+    alpha: float = Field(0.9, gt=0, le=1)
+    dual_lr: float = Field(0.5, gt=0, description="step of lambda per unit of relative constraint violation")
+    lambda_init: float = Field(1.0, ge=0)
+    lambda_max: float = Field(20.0, gt=0)
+
+
+class AssistanceConfig(_Frozen):
+    """DexMachina's virtual object assistance: a PD controller (plus gravity compensation) pulls
+    the object towards its reference pose; the gain factor starts at 1 and is multiplied by
+    ``decay`` whenever the mean task reward of recently finished episodes exceeds ``threshold``
+    (of its maximum), until it falls below ``min_gain`` and the object is on its own."""
+
+    enabled: bool = False
+    frequency_hz: float = Field(2.0, gt=0, description="natural frequency of the PD pull at gain 1 (mass-scaled)")
+    damping_ratio: float = Field(1.0, gt=0)
+    gravity_compensation: bool = True
+    threshold: float = Field(0.6, gt=0, le=1, description="task reward per step (fraction of its max) that triggers a decay")
+    decay: float = Field(0.8, gt=0, lt=1)
+    min_gain: float = Field(0.05, gt=0)
+    window_episodes: int = Field(50, ge=1, description="finished episodes averaged before each decision")
+
+
+class MethodConfig(_Frozen):
+    """One method variant: reward weights plus its own switch."""
+
+    rewards: RewardWeights = RewardWeights()
+    contrack: ContrackConfig = ContrackConfig()
+    assistance: AssistanceConfig = AssistanceConfig()
+
+
+def default_methods() -> dict[str, MethodConfig]:
+    """The three teacher variants. Only the contact signal and each method's own mechanism differ."""
+    return {
+        "touch2robot": MethodConfig(rewards=RewardWeights(tactile=1.0)),
+        "contrack": MethodConfig(rewards=RewardWeights(contact=1.0), contrack=ContrackConfig(enabled=True)),
+        "dexmachina": MethodConfig(rewards=RewardWeights(contact=0.5), assistance=AssistanceConfig(enabled=True)),
+    }
+
+
+class TeacherConfig(_Frozen):
+    """Teachers per task and method, and the rollouts they produce."""
+
+    tasks: tuple[str, ...] = TASKS
+    methods: tuple[TeacherMethod, ...] = ("touch2robot", "contrack", "dexmachina")
+    sim: SimConfig = SimConfig()
+    ppo: PPOConfig = PPOConfig()
+    variants: dict[str, MethodConfig] = Field(default_factory=default_methods)
+    action_scale: float = Field(0.25, gt=0, description="rad: joint target = kinematic reference + scale x clip(action, -1, 1)")
+    sigma_pos: float = Field(0.02, gt=0, description="m, object position kernel")
+    sigma_rot: float = Field(0.3, gt=0, description="rad, object orientation kernel")
+    sigma_joint: float = Field(0.5, gt=0, description="rad^2, hand imitation kernel")
+    sigma_contact: float = Field(0.02, gt=0, description="m, contact point kernel")
+    lost_pos_m: float = Field(0.06, gt=0, description="object (or drawer opening) error that ends an episode")
+    lost_rot_rad: float = Field(1.2, gt=0, description="object orientation error that ends an episode")
+    grace_steps: int = Field(5, ge=0, description="steps after reset before tracking can be lost")
+    contact_margin_m: float = Field(0.005, ge=0, description="ConTrack: hand segment within this of the surface = contact")
+    rollouts_per_task: int = Field(30, ge=1, description="deterministic teacher rollouts per task and method")
+    seed: int = 0
+
+    def method(self, name: str) -> MethodConfig:
+        """The variant of a method; a clear error for an unknown one."""
+        if name not in self.variants:
+            raise KeyError(f"teacher method {name!r} has no variant in teacher.variants (have {sorted(self.variants)})")
+        return self.variants[name]
