@@ -73,6 +73,11 @@ class DataLayout:
         return self.user_study / "ratings_SYNTHETIC.csv"
 
     @property
+    def checkpoints(self) -> Path:
+        """Training checkpoints (one folder per training, named by what it trains and a config key)."""
+        return self.root / "checkpoints"
+
+    @property
     def reports(self) -> Path:
         return self.root / "reports"
 

@@ -17,7 +17,8 @@ import pyarrow as pa
 from schemas.tables import ROBOT_REGIONS, SCHEMAS
 from touch2robot.contacts import long_rows
 from touch2robot.sim.env import BatchEnv
-from touch2robot.teachers.objective import DemoTracking
+from touch2robot.metrics import contact_scores
+from touch2robot.teachers.objective import DemoTracking, References
 
 Policy = Callable[[dict[str, np.ndarray]], np.ndarray]
 
@@ -129,13 +130,23 @@ def _tables(steps: list[dict[str, np.ndarray]], objective: DemoTracking, method:
     return rollouts, pa.concat_tables(contact_tables)
 
 
-def summary(rollouts: pa.Table) -> dict[str, float]:
-    """Per batch of rollouts: success rate (final row), mean final progress, mean length (s)."""
+def summary(rollouts: pa.Table, refs: References, threshold_n: float) -> dict[str, float]:
+    """A batch of rollouts: success rate and progress at their final rows, mean length, and the
+    contact precision / recall / F1 of their sim contacts against the human preference over all
+    time-region pairs (the paper's pooled contact metric)."""
     ids = rollouts["rollout_id"].to_numpy(zero_copy_only=False)
     last = np.r_[ids[1:] != ids[:-1], True]
+    demo = np.array([refs.ids.index(r) for r in rollouts["reference_id"].to_pylist()])
+    frame = np.array([np.searchsorted(refs.t_ref[d, : refs.length[d]], t) for d, t in zip(demo, rollouts["t_ref"].to_numpy())])
+    preference = refs.preference[demo, np.minimum(frame, refs.length[demo] - 1)]
+    force = rollouts["region_force"].combine_chunks().flatten().to_numpy().reshape(-1, 8)
+    scores = contact_scores(preference, force > threshold_n)
     return {
         "rollouts": int(last.sum()),
         "success_rate": float(rollouts["success"].to_numpy(zero_copy_only=False)[last].mean()),
         "final_progress": float(rollouts["progress"].to_numpy()[last].mean()),
         "mean_length_s": float(rollouts["t"].to_numpy()[last].mean()),
+        "contact_precision": scores.precision,
+        "contact_recall": scores.recall,
+        "contact_f1": scores.f1,
     }

@@ -4,6 +4,7 @@ run and uploads each checkpoint to it, and resumption from the last readable che
 
 from __future__ import annotations
 
+import pickle
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -105,13 +106,12 @@ def checkpoints(run_dir: Path) -> list[tuple[int, Path]]:
 
 
 def load_latest(runner: OnPolicyRunner, run_dir: Path) -> int | None:
-    """Load the newest readable checkpoint (a kill during a save leaves a torn file: skip it);
-    returns the number of iterations it had completed, or None if there is none."""
+    """Load the newest readable checkpoint (a kill during a save leaves a torn file: it is skipped
+    and later overwritten); returns the number of iterations it had completed, or None."""
     for it, path in checkpoints(run_dir):
         try:
             runner.load(str(path), map_location="cpu")
-        except (RuntimeError, EOFError, KeyError, ValueError, OSError):
-            path.unlink(missing_ok=True)
+        except (RuntimeError, EOFError, KeyError, ValueError, OSError, pickle.UnpicklingError):
             continue
         return it + 1
     return None

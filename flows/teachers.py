@@ -1,0 +1,50 @@
+"""Flow `teachers`: per task x method PPO teachers that track the human demonstrations and their
+contacts, their deterministic rollouts, and the kinematic (Dex Retargeting) replays ->
+``rollouts`` and sim ``contacts`` tables, one MLflow run per task x method (stage "teachers")."""
+
+from __future__ import annotations
+
+from prefect import flow
+
+from flows.retarget import glove_sessions
+from tasks.common import stored
+from tasks.ingest import refresh_catalog
+from tasks.runners import ProfileTaskRunner
+from tasks.teachers import kinematic_rollouts, references_digest, report_teachers, teacher_rollouts, train_teacher
+from touch2robot import lake as lake_io
+from touch2robot.config import load_profile
+from touch2robot.ingest import recording_rows
+from touch2robot.settings import DataLayout
+
+
+@flow(name="teachers", task_runner=ProfileTaskRunner(), log_prints=True)
+def teachers(profile: str = "smoke", data: str | None = None, tasks: list[str] | None = None, methods: list[str] | None = None) -> list[dict]:
+    """Train the profile's teachers (``tasks`` x ``methods``, default the profile's ``teacher``
+    section) on every retargeted glove demonstration of each task, record their rollouts and
+    the kinematic baseline's, refresh the catalog and report success and contact F1."""
+    layout = DataLayout.from_env(data)
+    config = load_profile(profile).teacher
+    config = config.model_copy(update={"tasks": tuple(tasks or config.tasks), "methods": tuple(methods or config.methods)})
+    for m in config.methods:
+        config.method(m)  # an unknown method fails here, before any training
+    demos: dict[str, list[dict]] = {}
+    for r in glove_sessions(recording_rows(layout.lake).to_pylist()):
+        if r["task"] in config.tasks and lake_io.file_path(layout.lake, "retargeted", r["recording_id"]).is_file():
+            demos.setdefault(r["task"], []).append({k: r[k] for k in ("recording_id", "task", "subject")})
+    missing = [t for t in config.tasks if t not in demos]
+    if missing:
+        print(f"teachers: no retargeted demonstrations for {missing}: run the ingest and retarget flows first")
+    root = str(layout.root)
+    trained, replays = [], []
+    for task_name, recs in demos.items():
+        digest = references_digest(layout.lake, recs)
+        replays.append(stored(kinematic_rollouts, layout.results).submit(task_name, config, recs, digest, root, profile))
+        for method in config.methods:
+            run = stored(train_teacher, layout.results).submit(task_name, method, config, recs, digest, root, profile)
+            trained.append(stored(teacher_rollouts, layout.results).submit(run, config, recs, digest, root))
+    results = [f.result() for f in replays + trained]
+    refresh_catalog(root)
+    table = report_teachers(profile, results)
+    for r in table:
+        print(f"teachers: {r['task']:7s} {r['method']:16s} success {r['success_rate']:.2f}  contact F1 {r['contact_f1']:.3f}")
+    return table

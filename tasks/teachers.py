@@ -1,0 +1,192 @@
+"""Tasks of the teachers stage: train one PPO teacher per task x method (resuming from its last
+checkpoint), record its deterministic rollouts, replay the kinematic baseline, and report."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+from prefect import get_run_logger, task
+from prefect.artifacts import create_markdown_artifact, create_table_artifact
+
+from tasks.common import cache_policy, file_digest
+from touch2robot import lake as lake_io
+from touch2robot import tracking
+from touch2robot.settings import DataLayout
+from touch2robot.teachers.config import TeacherConfig
+
+TEACHER_MODULES = ("touch2robot.teachers", "touch2robot.sim", "touch2robot.leap", "touch2robot.scenes", "touch2robot.contacts", "touch2robot.lake")
+# the lake files a demonstration reference is built from (see touch2robot.teachers.reference)
+REFERENCE_TABLES = ("retargeted", "object_pose", "hand_keypoints")
+
+
+def references_digest(lake: Path, recordings: list[dict]) -> str:
+    """Content hash of every lake file the references of ``recordings`` read: a new retargeting
+    or new contacts retrain the teacher, an unchanged lake hits the cache."""
+    h = hashlib.sha256()
+    for r in sorted(recordings, key=lambda r: r["recording_id"]):
+        paths = [lake_io.file_path(lake, t, r["recording_id"]) for t in REFERENCE_TABLES]
+        paths.append(lake_io.file_path(lake, "contacts", r["recording_id"], {"source": "human", "task": r["task"]}))
+        for p in paths:
+            h.update(p.name.encode())
+            h.update(file_digest(p).encode() if p.is_file() else b"missing")
+    return h.hexdigest()
+
+
+def _references(layout: DataLayout, recordings: list[dict], config: TeacherConfig):
+    from touch2robot.teachers.objective import stack_references
+    from touch2robot.teachers.reference import load_reference
+
+    hz = config.sim.control_hz
+    return stack_references([load_reference(layout.lake, r, hz, config.contact_margin_m) for r in recordings])
+
+
+def _params(config: TeacherConfig, method: str) -> dict[str, object]:
+    """Flat MLflow params: PPO, sim, objective scales and the method's variant."""
+    flat: dict[str, object] = {}
+
+    def walk(prefix: str, value: object) -> None:
+        if isinstance(value, dict):
+            for k, v in value.items():
+                walk(f"{prefix}.{k}" if prefix else str(k), v)
+        else:
+            flat[prefix] = value
+
+    dump = config.model_dump(mode="json", exclude={"variants", "tasks", "methods"})
+    walk("", dump)
+    walk("method", config.method(method).model_dump(mode="json"))
+    return flat
+
+
+def _run_folder(layout: DataLayout, task_name: str, method: str, config: TeacherConfig, digest: str) -> Path:
+    """One folder per distinct training: checkpoints of another config or other demonstrations
+    are never resumed into this one."""
+    key = hashlib.sha256(json.dumps([config.model_dump(mode="json", exclude={"tasks", "methods", "rollouts_per_task"}), method, task_name, digest], sort_keys=True).encode())
+    return layout.checkpoints / "teachers" / f"{task_name}-{method}-{key.hexdigest()[:12]}"
+
+
+def _mlflow_run(layout: DataLayout, folder: Path, name: str, tags: dict[str, str], params: dict[str, object]) -> str:
+    """The training's MLflow run: the one recorded in its folder (a resumed training continues
+    its curves), else a new one."""
+    import mlflow
+
+    marker = folder / "mlflow_run.json"
+    uri = tracking.tracking_uri(layout)
+    if marker.is_file():
+        saved = json.loads(marker.read_text())
+        if saved.get("tracking_uri") == uri:
+            return saved["run_id"]
+    folder.mkdir(parents=True, exist_ok=True)
+    with tracking.stage_run(layout, "teachers", name, tags) as run:
+        mlflow.log_params(params)
+    tmp = marker.with_suffix(".tmp")
+    tmp.write_text(json.dumps({"run_id": run.info.run_id, "tracking_uri": uri}))
+    tmp.replace(marker)
+    return run.info.run_id
+
+
+@task(cache_policy=cache_policy(*TEACHER_MODULES), persist_result=True, retries=1, task_run_name="teacher-{task_name}-{method}")
+def train_teacher(task_name: str, method: str, config: TeacherConfig, recordings: list[dict], digest: str, data: str, profile: str) -> dict:
+    """Train (or finish training) the teacher of one task and method; metrics stream to one MLflow
+    run (stage "teachers"), checkpoints are its artefacts. A killed run resumes from the newest
+    checkpoint: the retry, or the next flow run, continues instead of starting over."""
+    import torch
+
+    from touch2robot.teachers.train import make_teacher_env, train
+
+    torch.set_num_threads(1)  # the fan-out runs teachers side by side; MuJoCo has its own threads
+    layout = DataLayout.from_env(data)
+    refs = _references(layout, recordings, config)
+    folder = _run_folder(layout, task_name, method, config, digest)
+    tags = {"profile": profile, "task": task_name, "method": method, "demonstrations": str(len(recordings)), "checkpoints": str(folder)}
+    run_id = _mlflow_run(layout, folder, f"teacher-{task_name}-{method}", tags, _params(config, method))
+    vec_env = make_teacher_env(task_name, refs, config, method)
+    try:
+        result = train(vec_env, config, folder, run_id, tracking.tracking_uri(layout))
+    finally:
+        vec_env.env.close()
+    if result.resumed_from:
+        get_run_logger().info("teacher %s/%s resumed at iteration %d of %d", task_name, method, result.resumed_from, result.iterations)
+    return {"task": task_name, "method": method, "checkpoint": str(result.checkpoint), "iterations": result.iterations,
+            "resumed_from": result.resumed_from, "mlflow_run": run_id}  # fmt: skip
+
+
+def _store_rollouts(layout: DataLayout, task_name: str, method: str, origin: str, rollouts, contacts) -> None:
+    lake_io.write_rows(layout.lake, "rollouts", f"{origin}-{task_name}", rollouts, {"method": method})
+    lake_io.write_rows(layout.lake, "contacts", f"{origin}-{method}", contacts, {"source": "sim", "task": task_name})
+
+
+@task(cache_policy=cache_policy(*TEACHER_MODULES, "touch2robot.metrics"), persist_result=True, task_run_name="rollouts-{trained[task]}-{trained[method]}")
+def teacher_rollouts(trained: dict, config: TeacherConfig, recordings: list[dict], digest: str, data: str) -> dict:
+    """``config.rollouts_per_task`` deterministic rollouts of a trained teacher -> ``rollouts`` and
+    sim ``contacts``; success rate and contact F1 vs the human preference go to its MLflow run."""
+    import torch
+    from tensordict import TensorDict
+
+    from touch2robot.teachers import rollouts as ro
+    from touch2robot.teachers.train import load_policy, make_teacher_env
+
+    torch.set_num_threads(1)
+    layout = DataLayout.from_env(data)
+    task_name, method = trained["task"], trained["method"]
+    refs = _references(layout, recordings, config)
+    vec_env = make_teacher_env(task_name, refs, config, method, n_envs=config.rollouts_per_task)
+    policy = load_policy(vec_env, config, Path(trained["checkpoint"]))
+
+    def act(obs: dict) -> object:
+        groups = TensorDict({k: torch.as_tensor(v, dtype=torch.float32) for k, v in obs.items()}, batch_size=[vec_env.num_envs])
+        with torch.inference_mode():
+            return policy(groups).numpy()
+
+    try:
+        rows, contacts = ro.record(vec_env.env, vec_env.objective, act, method, "teacher", seed=config.seed)
+    finally:
+        vec_env.env.close()
+    _store_rollouts(layout, task_name, method, "teacher", rows, contacts)
+    figures = ro.summary(rows, refs, config.sim.contact_threshold_n)
+    with tracking.stage_run(layout, "teachers", "", run_id=trained["mlflow_run"]):
+        import mlflow
+
+        mlflow.log_metrics({f"rollouts/{k}": v for k, v in figures.items() if v == v})
+    return {"task": task_name, "method": method, "origin": "teacher", **figures, "iterations": trained["iterations"], "mlflow_run": trained["mlflow_run"]}
+
+
+@task(cache_policy=cache_policy(*TEACHER_MODULES, "touch2robot.metrics"), persist_result=True, task_run_name="kinematic-{task_name}")
+def kinematic_rollouts(task_name: str, config: TeacherConfig, recordings: list[dict], digest: str, data: str, profile: str) -> dict:
+    """Dex Retargeting's robot trajectories: the kinematic references replayed in MuJoCo with no
+    residual (no teacher), one per demonstration, recorded like teacher rollouts."""
+    from touch2robot.sim.env import BatchEnv
+    from touch2robot.sim.scene import build_scene
+    from touch2robot.teachers import rollouts as ro
+    from touch2robot.teachers.objective import DemoTracking
+
+    layout = DataLayout.from_env(data)
+    refs = _references(layout, recordings, config)
+    env = BatchEnv(build_scene(task_name, config.sim), config.sim, len(refs.ids))
+    try:
+        rows, contacts = ro.record(env, DemoTracking(refs, config, "touch2robot"), ro.zero_residual, "dex-retargeting", "kinematic")
+    finally:
+        env.close()
+    _store_rollouts(layout, task_name, "dex-retargeting", "kinematic", rows, contacts)
+    figures = ro.summary(rows, refs, config.sim.contact_threshold_n)
+    tags = {"profile": profile, "task": task_name, "method": "dex-retargeting", "origin": "kinematic"}
+    with tracking.stage_run(layout, "teachers", f"kinematic-{task_name}", tags) as run:
+        import mlflow
+
+        mlflow.log_metrics({f"rollouts/{k}": v for k, v in figures.items() if v == v})
+    return {"task": task_name, "method": "dex-retargeting", "origin": "kinematic", **figures, "iterations": 0, "mlflow_run": run.info.run_id}
+
+
+@task
+def report_teachers(profile: str, results: list[dict]) -> list[dict]:
+    """A Prefect table of success rate and contact F1 per task x method, and a summary."""
+    keys = ("task", "method", "origin", "iterations", "rollouts", "success_rate", "final_progress", "contact_precision", "contact_recall", "contact_f1")
+    table = [{k: (round(r[k], 3) if isinstance(r[k], float) else r[k]) for k in keys} for r in results]
+    create_table_artifact(key="teacher-rollouts", table=table, description=f"Teacher rollouts ({profile})")
+    lines = [f"| {r['task']} | {r['method']} | {r['success_rate']:.2f} | {r['contact_f1']:.3f} |" for r in table]
+    create_markdown_artifact(
+        key="teachers-summary",
+        markdown=f"# Teachers ({profile})\n\n| task | method | success | contact F1 vs human |\n|---|---|---|---|\n" + "\n".join(lines) + "\n",
+    )
+    return table
