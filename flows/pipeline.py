@@ -8,14 +8,17 @@ from flows.evaluate import evaluate
 from flows.ingest import ingest
 from flows.retarget import retarget
 from flows.synth import synth
+from flows.teachers import teachers
 
 
 @flow(name="pipeline", log_prints=True)
 def pipeline(profile: str = "smoke", data: str | None = None, synthesize: bool = True) -> dict:
     """Simulated demonstrator (unless ``synthesize`` is false: bring your own recordings
-    in ``<data>/recordings``) -> ingest and contacts -> kinematic retargeting -> evaluation."""
+    in ``<data>/recordings``) -> ingest and contacts -> kinematic retargeting -> teachers and
+    their rollouts -> evaluation."""
     if synthesize:
         synth(profile=profile, data=data)
     ingested = ingest(profile=profile, data=data)
     retargeted = retarget(profile=profile, data=data)
-    return {"ingest": ingested, "retarget": retargeted, "evaluate": evaluate(profile=profile, data=data)}
+    taught = teachers(profile=profile, data=data)
+    return {"ingest": ingested, "retarget": retargeted, "teachers": taught, "evaluate": evaluate(profile=profile, data=data)}

@@ -227,7 +227,9 @@ retargeted = pa.schema(
 # actions: touch2robot, contrack, dexmachina), "kinematic" (dex-retargeting: the kinematic
 # trajectory replayed with no residual) or "student" (touch2robot's distilled student on a
 # held-out demonstration). Row 0 of a rollout is its reset state, so replaying the commands from
-# it in the same scene reproduces the rollout. Files: lake/rollouts/method=<m>/<origin>-<task>.parquet
+# it in the same scene reproduces the rollout: reset with hand qpos = joint_position, servo targets
+# = joint_position, wrist body and mocap = wrist_state, object = object_pose (drawer: drawer_opening)
+# (touch2robot.teachers.rollouts.reset_to_rows). Files: lake/rollouts/method=<m>/<origin>-<task>.parquet
 ROLLOUT_METHODS: tuple[str, ...] = ("touch2robot", "contrack", "dexmachina", "dex-retargeting")
 ROLLOUT_ORIGINS: tuple[str, ...] = ("teacher", "kinematic", "student")
 
@@ -242,11 +244,12 @@ rollouts = pa.schema(
         pa.field("step", pa.int32(), nullable=False),  # control step since reset
         pa.field("t", pa.float64(), nullable=False),  # s since the rollout's reset
         pa.field("t_ref", pa.float64(), nullable=False),  # s on the reference recording's clock
-        pa.field("joint_position", pa.list_(pa.float32(), 16), nullable=False),  # LEAP joints (rad), LEAP_JOINT_NAMES order
-        pa.field("joint_velocity", pa.list_(pa.float32(), 16), nullable=False),
-        pa.field("joint_target", pa.list_(pa.float32(), 16), nullable=False),  # command applied from this state
+        pa.field("joint_position", pa.list_(pa.float64(), 16), nullable=False),  # LEAP joints (rad), LEAP_JOINT_NAMES order
+        pa.field("joint_velocity", pa.list_(pa.float64(), 16), nullable=False),
+        pa.field("joint_target", pa.list_(pa.float64(), 16), nullable=False),  # command applied from this state
         pa.field("reference_joints", pa.list_(pa.float32(), 16), nullable=False),  # kinematic retargeting at t_ref
-        pa.field("wrist_pose", pa.list_(pa.float64(), 7), nullable=False),  # commanded wrist (mocap) pose: px py pz qw qx qy qz
+        pa.field("wrist_state", pa.list_(pa.float64(), 7), nullable=False),  # observed wrist body pose: px py pz qw qx qy qz
+        pa.field("wrist_pose", pa.list_(pa.float64(), 7), nullable=False),  # commanded wrist (mocap) pose from this state
         pa.field("object_pose", pa.list_(pa.float64(), 7), nullable=False),  # object body pose in the world
         pa.field("drawer_opening", pa.float64(), nullable=False),  # slide travel (m); 0 for free objects
         pa.field("region_force", pa.list_(pa.float32(), 8), nullable=False),  # N on T1..T4, P1..P4

@@ -46,3 +46,31 @@ def smoke_data(tmp_path_factory: pytest.TempPathFactory) -> Path:
     for job in plan(config):
         write_recording(config, job, layout.recordings, layout.groundtruth)
     return layout.root
+
+
+@pytest.fixture(scope="session")
+def demo_lake(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A data folder with one glove demonstration per task, ingested, with human contacts and
+    kinematic retargeting in the lake (library calls only). Tests must copy it before changing it."""
+    from touch2robot import lake as lake_io
+    from touch2robot.contacts import ContactsConfig
+    from touch2robot.contacts.extract import human_contacts
+    from touch2robot.ingest import ingest_file, recording_rows
+    from touch2robot.retarget import LEAP_DEFAULT
+    from touch2robot.retarget.lake import load_hand_motion, write_result
+    from touch2robot.retarget.retargeter import Retargeter, retarget_motion
+    from touch2robot.settings import DataLayout
+    from touch2robot.synth.config import SynthConfig
+    from touch2robot.synth.generate import RecordingJob, write_recording
+
+    layout = DataLayout(tmp_path_factory.mktemp("demos") / "data")
+    config = SynthConfig(subjects=1, demos_per_subject=1, replays_per_task=0)
+    retargeter = Retargeter(LEAP_DEFAULT)
+    for task in config.tasks:
+        ingest_file(write_recording(config, RecordingJob("glove_session", task, 1, 1), layout.recordings, layout.groundtruth), layout.lake)
+    for recording in recording_rows(layout.lake).to_pylist():
+        rid = recording["recording_id"]
+        rows, _ = human_contacts(layout.lake, recording, ContactsConfig())
+        lake_io.write_rows(layout.lake, "contacts", rid, rows, {"source": "human", "task": recording["task"]})
+        write_result(layout.lake, retarget_motion(load_hand_motion(layout.lake, rid), LEAP_DEFAULT, retargeter))
+    return layout.root

@@ -79,6 +79,33 @@ def ingest(
 
 
 @app.command()
+def retarget(profile: ProfileOpt = "smoke", data: DataOpt = None) -> None:
+    """Kinematic retargeting of every ingested glove recording to LEAP joints (flow `retarget`)."""
+    _check_profile(profile)
+    layout = _layout(data)
+    from flows.retarget import retarget as retarget_flow
+
+    console.print(retarget_flow(profile=profile, data=str(layout.root)))
+
+
+@app.command()
+def teachers(
+    profile: ProfileOpt = "smoke",
+    data: DataOpt = None,
+    task: Annotated[list[str] | None, typer.Option(help="task to train (repeatable; default the profile's teacher.tasks)")] = None,
+    method: Annotated[list[str] | None, typer.Option(help="touch2robot | contrack | dexmachina (repeatable; default all)")] = None,
+) -> None:
+    """Train PPO teachers per task x method, record their rollouts and the kinematic replays
+    (flow `teachers`); a killed training resumes from its last checkpoint."""
+    _check_profile(profile)
+    layout = _layout(data)
+    from flows.teachers import teachers as teachers_flow
+
+    for row in teachers_flow(profile=profile, data=str(layout.root), tasks=task or None, methods=method or None):
+        console.print(row)
+
+
+@app.command()
 def evaluate(
     profile: ProfileOpt = "smoke",
     data: DataOpt = None,

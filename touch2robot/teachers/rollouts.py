@@ -62,6 +62,7 @@ def record(env: BatchEnv, objective: DemoTracking, policy: Policy, method: str, 
                 "joint_velocity": env.hand_qvel.copy(),
                 "joint_target": np.clip(targets, env.ctrl_low, env.ctrl_high),
                 "reference_joints": refs.joints[objective.demo, frame],
+                "wrist_state": env.wrist_pose.copy(),
                 "wrist_pose": np.concatenate([wrist_pos, wrist_quat / np.linalg.norm(wrist_quat, axis=1, keepdims=True)], axis=1),
                 "object_pose": np.concatenate([env.object_pos, env.object_quat], axis=1),
                 "drawer_opening": env.drawer_opening.copy(),
@@ -77,6 +78,28 @@ def record(env: BatchEnv, objective: DemoTracking, policy: Policy, method: str, 
             env.step(targets, wrist_pos, wrist_quat)
     objective.eval_demos = None
     return _tables(steps, objective, method, origin, dt, env.scene.spec.name)
+
+
+def column(table: pa.Table, name: str) -> np.ndarray:
+    """A fixed-size list column as a (rows, width) float64 array (a scalar column as (rows,))."""
+    col = table[name].combine_chunks()
+    if pa.types.is_fixed_size_list(col.type):
+        return col.flatten().to_numpy(zero_copy_only=False).reshape(len(col), col.type.list_size).astype(np.float64)
+    return col.to_numpy(zero_copy_only=False)
+
+
+def reset_to_rows(env: BatchEnv, ids: np.ndarray, first_rows: pa.Table) -> None:
+    """Reset copies ``ids`` to the states recorded in rollouts rows (one row per copy, normally
+    each rollout's row 0): replaying the recorded commands from there reproduces the rollouts."""
+    joints, wrist = column(first_rows, "joint_position"), column(first_rows, "wrist_state")
+    qpos = np.tile(env.scene.home_qpos, (len(ids), 1))
+    qpos[:, env.scene.hand_qpos] = joints
+    adr = env.scene.object_qpos
+    if env.scene.is_drawer:
+        qpos[:, adr] = column(first_rows, "drawer_opening")
+    else:
+        qpos[:, adr : adr + 7] = column(first_rows, "object_pose")
+    env.reset(np.asarray(ids), qpos=qpos, joint_targets=joints, wrist_pos=wrist[:, :3], wrist_quat=wrist[:, 3:])
 
 
 def rollout_id(origin: str, method: str, task: str, index: int) -> str:
@@ -107,10 +130,11 @@ def _tables(steps: list[dict[str, np.ndarray]], objective: DemoTracking, method:
                     "step": pa.array(step.astype(np.int32)),
                     "t": t,
                     "t_ref": get("t_ref"),
-                    "joint_position": _fixed(get("joint_position").astype(np.float32), pa.float32()),
-                    "joint_velocity": _fixed(get("joint_velocity").astype(np.float32), pa.float32()),
-                    "joint_target": _fixed(get("joint_target").astype(np.float32), pa.float32()),
+                    "joint_position": _fixed(get("joint_position"), pa.float64()),
+                    "joint_velocity": _fixed(get("joint_velocity"), pa.float64()),
+                    "joint_target": _fixed(get("joint_target"), pa.float64()),
                     "reference_joints": _fixed(get("reference_joints").astype(np.float32), pa.float32()),
+                    "wrist_state": _fixed(get("wrist_state"), pa.float64()),
                     "wrist_pose": _fixed(get("wrist_pose"), pa.float64()),
                     "object_pose": _fixed(get("object_pose"), pa.float64()),
                     "drawer_opening": get("drawer_opening"),
