@@ -11,6 +11,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from touch2robot.contacts.config import ContactsConfig
+from touch2robot.policy.config import PolicyConfig
 from touch2robot.retarget.config import RetargetConfig
 from touch2robot.runner_config import RunnerConfig
 from touch2robot.synth.config import SynthConfig
@@ -29,6 +30,7 @@ class Profile(BaseModel):
     contacts: ContactsConfig = ContactsConfig()
     retarget: RetargetConfig = RetargetConfig()
     runner: RunnerConfig = RunnerConfig()
+    policy: PolicyConfig = PolicyConfig()
 
 
 class ProfileError(ValueError):
