@@ -258,6 +258,31 @@ rollouts = pa.schema(
     ]
 )
 
+# --- Diffusion Policy evaluation (flow `policy`; one file per method x task) ----------------
+# Closed-loop success of LeRobot's Diffusion Policy trained on one method's robot demonstrations
+# of one task (the paper's downstream test). Files: lake/policy_eval/<method>-<task>.parquet
+policy_eval = pa.schema(
+    [
+        pa.field("task", pa.string(), nullable=False),
+        pa.field("method", pa.string(), nullable=False),  # whose rollouts the demonstrations are
+        pa.field("origin", pa.string(), nullable=False),  # which rollouts: student | teacher | kinematic
+        pa.field("profile", pa.string(), nullable=False),
+        pa.field("dataset_episodes", pa.int32(), nullable=False),  # demonstrations trained on
+        pa.field("dataset_frames", pa.int32(), nullable=False),
+        pa.field("train_steps", pa.int32(), nullable=False),  # optimizer updates
+        pa.field("final_loss", pa.float32(), nullable=False),  # mean diffusion loss over the last logging window
+        pa.field("episodes", pa.int32(), nullable=False),  # seeded closed-loop episodes
+        pa.field("successes", pa.int32(), nullable=False),
+        pa.field("success_rate", pa.float32(), nullable=False),
+        pa.field("ci_low", pa.float32(), nullable=False),  # 95 % Wilson interval of the success rate
+        pa.field("ci_high", pa.float32(), nullable=False),
+        pa.field("mean_progress", pa.float32(), nullable=False),  # task progress in [0, 1] at episode end
+        pa.field("episode_steps", pa.int32(), nullable=False),  # control steps per episode (20 Hz)
+        pa.field("replans", pa.int32(), nullable=False),  # policy inferences per episode
+        pa.field("mlflow_run", pa.string(), nullable=False),  # run of stage "policy" with curves, videos, policy
+    ]
+)
+
 SCHEMAS: dict[str, pa.Schema] = {
     "recordings": recordings,
     "taxels": taxels,
@@ -277,6 +302,7 @@ SCHEMAS: dict[str, pa.Schema] = {
     "user_study": user_study,
     "retargeted": retargeted,
     "rollouts": rollouts,
+    "policy_eval": policy_eval,
 }
 
 # Hive partition columns per table (directory levels under lake/<table>/).

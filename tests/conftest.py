@@ -74,3 +74,62 @@ def demo_lake(tmp_path_factory: pytest.TempPathFactory) -> Path:
         lake_io.write_rows(layout.lake, "contacts", rid, rows, {"source": "human", "task": recording["task"]})
         write_result(layout.lake, retarget_motion(load_hand_motion(layout.lake, rid), LEAP_DEFAULT, retargeter))
     return layout.root
+
+
+def scripted_rollout_rows(task: str, method: str, n: int, steps: int, origin: str = "teacher", seed: int = 0):
+    """``rollouts`` rows from real MuJoCo physics for tests of the stages that read the table:
+    ``n`` copies of a task scene reset at home, driven by a scripted grasp (joint targets blending
+    from home toward a closed hand, the wrist lowering then rising; timing varied per copy). Row
+    ``k`` holds the state observed before command ``k`` and that command, as the teachers write."""
+    import numpy as np
+    import pyarrow as pa
+
+    from touch2robot.sim.config import SimConfig
+    from touch2robot.sim.env import BatchEnv
+    from touch2robot.sim.scene import build_scene
+
+    close = np.array([1.0, 0.0, 1.0, 0.8] * 3 + [1.0, 1.0, 0.6, 0.4])
+    rng = np.random.default_rng(seed)
+    cfg = SimConfig(n_envs=n, threads=1)
+    env = BatchEnv(build_scene(task, cfg), cfg)
+    home = env.home_state[env.layout.qpos][env.scene.hand_qpos]
+    onset = rng.uniform(3, 8, n)
+    depth = rng.uniform(0.035, 0.05, n)
+    rows: dict[str, list] = {k: [] for k in ("rollout_id", "step", "joint_position", "joint_velocity", "joint_target", "wrist_state", "wrist_pose", "object_pose", "drawer_opening", "region_force", "progress", "success")}
+    for k in range(steps):
+        grip = np.clip((k - onset) / 10, 0, 1)[:, None]
+        targets = home + grip * close
+        down = depth * np.clip(k / 12, 0, 1) - 0.006 * np.clip(k - 22, 0, None)
+        wrist = np.tile(np.concatenate([env.scene.home_wrist_pos, env.scene.home_wrist_quat]), (n, 1))
+        wrist[:, 2] -= down
+        obj = env.object_pose if not env.scene.is_drawer else np.zeros((n, 7))
+        for i in range(n):
+            rows["rollout_id"].append(f"{origin}-{method}-{task}-{i:03d}")
+            rows["step"].append(k)
+            rows["joint_position"].append(env.hand_qpos[i].copy())
+            rows["joint_velocity"].append(env.hand_qvel[i].copy())
+            rows["joint_target"].append(targets[i])
+            rows["wrist_state"].append(env.wrist_pose[i].copy())
+            rows["wrist_pose"].append(wrist[i])
+            rows["object_pose"].append(obj[i].copy())
+            rows["drawer_opening"].append(float(env.drawer_opening[i]))
+            rows["region_force"].append(env.region_force[i].copy())
+            rows["progress"].append(float(env.progress[i]))
+            rows["success"].append(bool(env.success[i]))
+        env.step(targets, wrist[:, :3], wrist[:, 3:])
+    env.close()
+    total = len(rows["step"])
+    dt = cfg.control_dt
+    return pa.table(
+        {
+            **{k: [v.tolist() if hasattr(v, "tolist") else v for v in vals] for k, vals in rows.items()},
+            "origin": [origin] * total,
+            "method": [method] * total,
+            "task": [task] * total,
+            "subject": ["s00"] * total,
+            "reference_id": ["scripted"] * total,
+            "t": [s * dt for s in rows["step"]],
+            "t_ref": [s * dt for s in rows["step"]],
+            "reference_joints": [r.tolist() for r in rows["joint_target"]],
+        }
+    )

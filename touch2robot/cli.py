@@ -121,6 +121,26 @@ def evaluate(
 
 
 @app.command()
+def policy(
+    profile: ProfileOpt = "smoke",
+    data: DataOpt = None,
+    task: Annotated[list[str] | None, typer.Option(help="task (repeatable; default the profile's policy.tasks)")] = None,
+    method: Annotated[list[str] | None, typer.Option(help="data-collection method (repeatable; default the profile's policy.methods)")] = None,
+) -> None:
+    """Robot demonstrations as LeRobot datasets, LeRobot's Diffusion Policy trained on them and
+    its closed-loop success, per task x method with rollouts in the lake (table policy_eval)."""
+    _check_profile(profile)
+    layout = _layout(data)
+    from flows.policy import policy as policy_flow
+
+    rows = policy_flow(profile=profile, data=str(layout.root), tasks=task or None, methods=method or None)
+    table = Table("task", "method", "origin", "success", "95% CI", "progress")
+    for r in rows:
+        table.add_row(r["task"], r["method"], r["origin"], f"{r['successes']}/{r['episodes']}", f"[{r['ci_low']:.2f}, {r['ci_high']:.2f}]", f"{r['mean_progress']:.2f}")
+    console.print(table)
+
+
+@app.command()
 def run(
     profile: ProfileOpt = "smoke",
     data: DataOpt = None,

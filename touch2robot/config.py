@@ -11,6 +11,7 @@ import yaml
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from touch2robot.contacts.config import ContactsConfig
+from touch2robot.policy.config import PolicyConfig
 from touch2robot.retarget.config import RetargetConfig
 from touch2robot.runner_config import RunnerConfig
 from touch2robot.synth.config import SynthConfig
@@ -31,6 +32,7 @@ class Profile(BaseModel):
     retarget: RetargetConfig = RetargetConfig()
     runner: RunnerConfig = RunnerConfig()
     teacher: TeacherConfig = TeacherConfig()
+    policy: PolicyConfig = PolicyConfig()
 
 
 class ProfileError(ValueError):

@@ -78,6 +78,16 @@ class DataLayout:
         return self.root / "checkpoints"
 
     @property
+    def datasets(self) -> Path:
+        """LeRobot datasets of the robot demonstrations (``<method>-<task>``)."""
+        return self.root / "datasets"
+
+    @property
+    def policies(self) -> Path:
+        """Diffusion Policy training folders (LeRobot checkpoints)."""
+        return self.root / "policies"
+
+    @property
     def reports(self) -> Path:
         return self.root / "reports"
 

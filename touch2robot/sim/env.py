@@ -165,6 +165,21 @@ class BatchEnv:
         self.time_step[ids] = 0
         self.tracker.reset(ids, self.object_pos[ids], self.object_quat[ids])
 
+    def reset_pose(self, ids: np.ndarray, joints: np.ndarray, wrist_pose: np.ndarray, object_pose: np.ndarray, drawer_opening: np.ndarray) -> None:
+        """Reset copies ``ids`` at rest to a recorded configuration: hand joints (k, 16) with the
+        servos holding them, wrist body and mocap target at ``wrist_pose`` (k, 7: pos, quat), the
+        object at ``object_pose`` (k, 7), or the drawer at ``drawer_opening`` (k,)."""
+        ids = np.asarray(ids)
+        qpos = np.tile(self.scene.home_qpos, (ids.size, 1))
+        qpos[:, self.scene.hand_qpos] = joints
+        adr = self.scene.object_qpos
+        if self.scene.is_drawer:
+            qpos[:, adr] = drawer_opening
+        else:
+            qpos[:, adr : adr + 7] = object_pose
+        wrist_pose = np.asarray(wrist_pose)
+        self.reset(ids, qpos=qpos, joint_targets=joints, wrist_pos=wrist_pose[:, :3], wrist_quat=wrist_pose[:, 3:])
+
     # ------------------------------------------------------------------ reading the batch
     @property
     def qpos(self) -> np.ndarray:

@@ -144,15 +144,9 @@ class DemoTracking:
         else:
             self.demo[ids] = rng.integers(0, len(self.refs.ids), ids.size)
         d = self.demo[ids]
-        qpos = np.tile(env.scene.home_qpos, (ids.size, 1))
-        qpos[:, env.scene.hand_qpos] = self.refs.joints[d, 0]
-        adr = env.scene.object_qpos
-        if env.scene.is_drawer:
-            qpos[:, adr] = self.refs.opening[d, 0]
-        else:
-            qpos[:, adr : adr + 3] = self.refs.object_pos[d, 0]
-            qpos[:, adr + 3 : adr + 7] = self.refs.object_quat[d, 0]
-        env.reset(ids, qpos=qpos, joint_targets=self.refs.joints[d, 0], wrist_pos=self.refs.wrist_pos[d, 0], wrist_quat=self.refs.wrist_quat[d, 0])
+        r = self.refs
+        wrist = np.concatenate([r.wrist_pos[d, 0], r.wrist_quat[d, 0]], axis=1)
+        env.reset_pose(ids, r.joints[d, 0], wrist, np.concatenate([r.object_pos[d, 0], r.object_quat[d, 0]], axis=1), r.opening[d, 0])
         self.prev_action[ids] = 0.0
         self.task_return[ids] = 0.0
 

@@ -91,15 +91,8 @@ def column(table: pa.Table, name: str) -> np.ndarray:
 def reset_to_rows(env: BatchEnv, ids: np.ndarray, first_rows: pa.Table) -> None:
     """Reset copies ``ids`` to the states recorded in rollouts rows (one row per copy, normally
     each rollout's row 0): replaying the recorded commands from there reproduces the rollouts."""
-    joints, wrist = column(first_rows, "joint_position"), column(first_rows, "wrist_state")
-    qpos = np.tile(env.scene.home_qpos, (len(ids), 1))
-    qpos[:, env.scene.hand_qpos] = joints
-    adr = env.scene.object_qpos
-    if env.scene.is_drawer:
-        qpos[:, adr] = column(first_rows, "drawer_opening")
-    else:
-        qpos[:, adr : adr + 7] = column(first_rows, "object_pose")
-    env.reset(np.asarray(ids), qpos=qpos, joint_targets=joints, wrist_pos=wrist[:, :3], wrist_quat=wrist[:, 3:])
+    columns = [column(first_rows, c) for c in ("joint_position", "wrist_state", "object_pose", "drawer_opening")]
+    env.reset_pose(ids, *columns)
 
 
 def rollout_id(origin: str, method: str, task: str, index: int) -> str:

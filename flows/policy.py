@@ -1,0 +1,40 @@
+"""Flow `policy`: per task x method with rollouts in the lake (best origin: student > teacher >
+kinematic), the LeRobot dataset of its robot demonstrations, LeRobot's Diffusion Policy trained on
+it and its closed-loop success (``policy_eval`` table, MLflow runs of stage "policy")."""
+
+from __future__ import annotations
+
+from prefect import flow, unmapped
+
+from tasks.common import stored
+from tasks.ingest import refresh_catalog
+from tasks.policy import build_policy_dataset, evaluate_policy, report_policy, rollout_sources, train_policy
+from tasks.runners import ProfileTaskRunner
+from touch2robot.config import load_profile
+from touch2robot.settings import DataLayout
+
+
+@flow(name="policy", task_runner=ProfileTaskRunner(), log_prints=True)
+def policy(profile: str = "smoke", data: str | None = None, tasks: list[str] | None = None, methods: list[str] | None = None) -> list[dict]:
+    """Datasets -> training -> closed-loop evaluation for every task x method in ``rollouts``
+    (narrowed by ``tasks`` / ``methods``, default the profile's ``policy`` section)."""
+    layout = DataLayout.from_env(data)
+    config = load_profile(profile).policy
+    tasks, methods = tasks or config.tasks, methods or config.methods
+    sources = [s for s in rollout_sources(str(layout.root)) if (not tasks or s["task"] in tasks) and (not methods or s["method"] in methods)]
+    if not sources:
+        print(f"policy: no rollouts in {layout.lake / 'rollouts'} (run the teachers first)")
+        return []
+    root = str(layout.root)
+    # replays and evaluation run the physics the rollouts were recorded with (the teachers' sim)
+    sim = load_profile(profile).teacher.sim
+    datasets = stored(build_policy_dataset, layout.results).map(sources, unmapped(config), unmapped(sim), unmapped(root))
+    trained = stored(train_policy, layout.results).map(datasets, unmapped(config), unmapped(root), unmapped(profile))
+    evaluated = stored(evaluate_policy, layout.results).map(trained, unmapped(config), unmapped(sim), unmapped(root), unmapped(profile))
+    rows = [f.result() for f in evaluated]
+    refresh_catalog(root)
+    report_policy(profile, rows)
+    for r in rows:
+        print(f"policy {r['task']:>7} x {r['method']:<16} ({r['origin']}): success {r['successes']}/{r['episodes']} "
+              f"= {r['success_rate']:.2f} [{r['ci_low']:.2f}, {r['ci_high']:.2f}], progress {r['mean_progress']:.2f}")  # fmt: skip
+    return rows

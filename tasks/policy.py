@@ -1,0 +1,131 @@
+"""Tasks of the policy stage, per task x method: the LeRobot dataset of its rollouts, LeRobot's
+Diffusion Policy trained on it (one MLflow run of stage "policy": loss and learning-rate curves,
+the final policy as an artefact) and its closed-loop evaluation (``policy_eval`` row, videos)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import tempfile
+from pathlib import Path
+
+from prefect import get_run_logger, task
+from prefect.artifacts import create_table_artifact
+
+from tasks.common import cache_policy, file_digest
+from touch2robot import lake as lake_io
+from touch2robot import tracking
+from touch2robot.policy import PolicyConfig
+from touch2robot.settings import DataLayout
+from touch2robot.sim.config import SimConfig
+
+POLICY_MODULES = ("touch2robot.policy", "touch2robot.sim", "touch2robot.scenes", "touch2robot.leap", "touch2robot.lake")
+DATASET_FIELDS = ("image_size", "cameras", "max_rollouts")
+TAGS_NOTE = "none: ResNet-18 trained from scratch (pretrained_backbone_weights=None, no downloads)"
+
+
+def _digest(payload: dict) -> str:
+    return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:12]
+
+
+@task(cache_policy=cache_policy(*POLICY_MODULES), persist_result=True, retries=1, task_run_name="dataset-{source[method]}-{source[task]}")
+def build_policy_dataset(source: dict, config: PolicyConfig, sim: SimConfig, data: str) -> dict:
+    """Replay one task x method's rollouts (with ``sim``, the physics they were recorded with) and
+    write its LeRobot dataset under <data>/datasets (the source's ``digest``, the rollouts file's
+    content hash, keys the cache)."""
+    from touch2robot.policy.dataset import build_dataset, read_rollouts
+    from touch2robot.sim.scene import build_scene
+
+    layout = DataLayout.from_env(data)
+    rollouts = read_rollouts(Path(source["path"]), config.max_rollouts)
+    root = layout.datasets / f"{source['method']}-{source['task']}"
+    summary = build_dataset(root, source["task"], source["method"], rollouts, build_scene(source["task"], sim), sim, config)
+    get_run_logger().info("%s: %d episodes, %d frames, rendering %.0f images/s, replay error max %.2e rad",
+                          root.name, summary.episodes, summary.frames, summary.render_fps, summary.replay_max_joint_error_rad)  # fmt: skip
+    return {**source, **summary.__dict__}
+
+
+@task(cache_policy=cache_policy(*POLICY_MODULES), persist_result=True, task_run_name="train-{dataset[method]}-{dataset[task]}")
+def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -> dict:
+    """Train LeRobot's Diffusion Policy on one dataset with loss and learning rate streamed to
+    the task x method's MLflow run. A crashed run resumes from its last LeRobot checkpoint and
+    its MLflow run (the training folder is keyed by the dataset and the training settings)."""
+    import mlflow
+
+    from touch2robot.policy.train import train
+
+    layout = DataLayout.from_env(data)
+    settings = config.model_dump(mode="json", exclude={*DATASET_FIELDS, "eval_episodes", "eval_batch", "eval_seed", "object_noise_m", "video_episodes"})
+    key = _digest({"dataset": dataset["digest"], "frames": dataset["frames"], **settings})
+    out = layout.policies / f"{dataset['method']}-{dataset['task']}-{key}"
+    out.mkdir(parents=True, exist_ok=True)
+    run_file = out / "mlflow_run_id"
+    tags = {"profile": profile, "task": dataset["task"], "method": dataset["method"], "origin": dataset["origin"], "pretrained_backbone": TAGS_NOTE}
+    tracking.experiment(layout, "policy")
+    if run_file.exists():
+        run_ctx = mlflow.start_run(run_id=run_file.read_text().strip())
+    else:
+        run_ctx = tracking.stage_run(layout, "policy", f"{dataset['method']}-{dataset['task']}", tags)
+    with run_ctx as run:
+        run_file.write_text(run.info.run_id)
+        mlflow.log_params({**settings, "dataset_root": dataset["root"], "dataset_episodes": dataset["episodes"], "dataset_frames": dataset["frames"]})
+        mlflow.log_metrics({"dataset/render_fps": dataset["render_fps"], "dataset/replay_max_joint_error_rad": dataset["replay_max_joint_error_rad"]})
+        result = train(Path(dataset["root"]), dataset["repo_id"], config, out / "lerobot",
+                       on_log=lambda step, m: mlflow.log_metrics({f"train/{k}": v for k, v in m.items()}, step=step))  # fmt: skip
+        mlflow.log_metrics({"train/samples_per_s_total": result.samples_per_s})
+        mlflow.log_artifacts(result.policy_dir, "policy")
+    return {**dataset, **result.__dict__, "mlflow_run": run.info.run_id}
+
+
+@task(cache_policy=cache_policy(*POLICY_MODULES), persist_result=True, task_run_name="evaluate-{trained[method]}-{trained[task]}")
+def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: str, profile: str) -> dict:
+    """Closed-loop episodes of the trained policy; one ``policy_eval`` row (lake) and success
+    metrics plus a few episode videos in the task x method's MLflow run."""
+    import mlflow
+    import pyarrow as pa
+
+    from touch2robot.policy.dataset import read_rollouts
+    from touch2robot.policy.evaluate import episode_starts, load_policy, rollout_policy, write_video
+    from touch2robot.sim.scene import build_scene
+
+    layout = DataLayout.from_env(data)
+    scene = build_scene(trained["task"], sim)
+    rollouts = read_rollouts(Path(trained["path"]), config.max_rollouts)
+    starts = episode_starts(scene, rollouts, config.eval_episodes, config.eval_seed, config.object_noise_m)
+    policy, pre, post = load_policy(Path(trained["policy_dir"]), config.device)
+    result = rollout_policy(policy, pre, post, scene, sim, starts, config, video_episodes=config.video_episodes)
+    low, high = result.wilson
+    row = {
+        "task": trained["task"], "method": trained["method"], "origin": trained["origin"], "profile": profile,
+        "dataset_episodes": trained["episodes"], "dataset_frames": trained["frames"], "train_steps": trained["steps"],
+        "final_loss": trained["last_loss"], "episodes": len(result.success), "successes": int(result.success.sum()),
+        "success_rate": result.success_rate, "ci_low": low, "ci_high": high, "mean_progress": float(result.progress.mean()),
+        "episode_steps": result.steps, "replans": result.replans, "mlflow_run": trained["mlflow_run"],
+    }  # fmt: skip
+    lake_io.write_rows(layout.lake, "policy_eval", f"{trained['method']}-{trained['task']}", pa.Table.from_pylist([row]))
+    tracking.experiment(layout, "policy")
+    with mlflow.start_run(run_id=trained["mlflow_run"]):
+        mlflow.log_metrics({"eval/success_rate": row["success_rate"], "eval/ci_low": low, "eval/ci_high": high, "eval/mean_progress": row["mean_progress"]})
+        with tempfile.TemporaryDirectory() as tmp:
+            for i, frames in enumerate(result.videos):
+                mlflow.log_artifact(str(write_video(frames, Path(tmp) / f"episode_{i:02d}.mp4")), "videos")
+    return row
+
+
+@task
+def report_policy(profile: str, rows: list[dict]) -> list[dict]:
+    """A Prefect table of the success rates per task x method."""
+    create_table_artifact(
+        key="policy-success",
+        table=[{k: (round(v, 3) if isinstance(v, float) else v) for k, v in r.items() if k != "mlflow_run"} for r in rows],
+        description=f"Diffusion Policy closed-loop success per task x method ({profile})",
+    )
+    return rows
+
+
+def rollout_sources(data: str) -> list[dict]:
+    """The rollouts file of every task x method (best origin), with its content hash."""
+    from touch2robot.policy.dataset import sources
+
+    layout = DataLayout.from_env(data)
+    return [{"task": s.task, "method": s.method, "origin": s.origin, "path": str(s.path), "digest": file_digest(s.path)} for s in sources(layout.lake)]

@@ -1,0 +1,111 @@
+"""Robot demonstrations as LeRobot datasets: the best origin per task x method, replay of real
+MuJoCo rollouts reproducing their states, the dataset round-tripping through LeRobot's loader and
+LeRobot's own training command, clear errors for bad rollouts files, the Wilson interval."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+import torch
+from conftest import scripted_rollout_rows
+
+from touch2robot import lake as lake_io
+from touch2robot.config import load_profile
+from touch2robot.policy.dataset import ACTION_NAMES, STATE_NAMES, TASK_INSTRUCTIONS, RolloutError, build_dataset, read_rollouts, sources
+from touch2robot.policy.evaluate import wilson_interval
+from touch2robot.policy.train import lerobot_train_args
+from touch2robot.sim.config import SimConfig
+from touch2robot.sim.scene import build_scene
+
+CONFIG = load_profile("smoke").policy
+
+
+@pytest.fixture(scope="module")
+def lake(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    lake = tmp_path_factory.mktemp("policy") / "lake"
+    lake_io.write_rows(lake, "rollouts", "teacher-pick", scripted_rollout_rows("pick", "contrack", 3, 30), partition={"method": "contrack"})
+    kinematic = scripted_rollout_rows("pick", "contrack", 1, 10, origin="kinematic", seed=1)
+    lake_io.write_rows(lake, "rollouts", "kinematic-pick", kinematic, partition={"method": "contrack"})
+    lake_io.write_rows(lake, "rollouts", "kinematic-drawer", scripted_rollout_rows("drawer", "dex-retargeting", 2, 12, origin="kinematic"),
+                       partition={"method": "dex-retargeting"})  # fmt: skip
+    return lake
+
+
+@pytest.fixture(scope="module")
+def dataset(lake: Path, tmp_path_factory: pytest.TempPathFactory):
+    src = next(s for s in sources(lake) if s.task == "pick")
+    sim = SimConfig(threads=1)
+    rollouts = read_rollouts(src.path)
+    root = tmp_path_factory.mktemp("datasets") / "contrack-pick"
+    return build_dataset(root, "pick", "contrack", rollouts, build_scene("pick", sim), sim, CONFIG), rollouts
+
+
+def test_sources_take_the_best_origin_per_task_and_method(lake: Path) -> None:
+    found = [(s.task, s.method, s.origin) for s in sources(lake)]
+    assert found == [("pick", "contrack", "teacher"), ("drawer", "dex-retargeting", "kinematic")]
+
+
+def test_dataset_round_trips_through_lerobots_loader(dataset) -> None:
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    summary, rollouts = dataset
+    assert summary.episodes == 3 and summary.frames == 90
+    # replay in the same scene reproduces the recorded physics
+    assert summary.replay_max_joint_error_rad < 1e-5
+    assert summary.render_frames == 2 * 90 and summary.render_fps > 0
+    ds = LeRobotDataset(summary.repo_id, root=summary.root)
+    assert ds.num_episodes == 3 and len(ds) == 90 and ds.fps == 20
+    assert ds.meta.features["observation.state"]["names"] == list(STATE_NAMES)
+    assert ds.meta.features["action"]["names"] == list(ACTION_NAMES)
+    frame = ds[31]  # episode 1, step 1
+    assert frame["episode_index"] == 1 and frame["frame_index"] == 1
+    assert frame["task"] == TASK_INSTRUCTIONS["pick"]
+    assert frame["observation.images.cam_left"].shape == (3, CONFIG.image_size, CONFIG.image_size)
+    assert frame["observation.images.cam_right"].std() > 0.01  # a rendered scene, not a blank
+    r = rollouts[1]
+    np.testing.assert_allclose(frame["observation.state"][:16].numpy(), r.joint_position[1], atol=1e-5)
+    np.testing.assert_allclose(frame["action"].numpy(), np.concatenate([r.joint_target[1], r.wrist_pose[1]]), atol=1e-6)
+    assert frame["observation.environment_state"].shape == (8,)
+    forces = torch.stack([ds[i]["observation.environment_state"] for i in range(60, 90)])
+    assert forces.max() > 0.5  # the scripted grasp touches the box: tactile forces are recorded
+
+
+def test_bad_rollouts_file_is_named(tmp_path: Path, lake: Path) -> None:
+    src = sources(lake)[0]
+    bad = tmp_path / "method=contrack" / "teacher-pick.parquet"
+    bad.parent.mkdir()
+    table = pq.read_table(src.path)
+    pq.write_table(table.drop_columns(["joint_target"]), bad)
+    with pytest.raises(RolloutError, match=r"teacher-pick.parquet: missing columns \['joint_target'\]"):
+        read_rollouts(bad)
+    gap = table.filter(pa.compute.not_equal(table.column("step"), 3))
+    pq.write_table(gap, bad)
+    with pytest.raises(RolloutError, match="expected 0, 1, 2"):
+        read_rollouts(bad)
+
+
+def test_wilson_interval_matches_statsmodels() -> None:
+    from statsmodels.stats.proportion import proportion_confint
+
+    for k, n in ((0, 10), (3, 10), (10, 10), (17, 50)):
+        np.testing.assert_allclose(wilson_interval(k, n), proportion_confint(k, n, method="wilson"), atol=1e-9)
+
+
+@pytest.mark.slow
+def test_lerobots_own_training_command_loads_the_dataset(dataset, tmp_path: Path) -> None:
+    summary, _ = dataset
+    cfg = CONFIG.model_copy(update={"batch_size": 4, "log_freq": 1})
+    args = lerobot_train_args(Path(summary.root), summary.repo_id, cfg, tmp_path / "out", steps=2, save=False)
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled", "OMP_NUM_THREADS": "1"}
+    cli = Path(sys.executable).with_name("lerobot-train")
+    done = subprocess.run([str(cli), *args], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    log = done.stdout + done.stderr
+    assert "dataset.num_frames=90" in log and "step:2" in log.replace(" ", "")

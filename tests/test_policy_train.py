@@ -1,0 +1,100 @@
+"""LeRobot's Diffusion Policy on a dataset of real MuJoCo rollouts: a few updates lower the loss,
+training resumes from LeRobot's last checkpoint, the closed loop predicts 24 actions and executes 16
+before replanning, and the `policy` flow fills ``policy_eval`` and its MLflow runs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from conftest import scripted_rollout_rows
+
+from touch2robot import lake as lake_io
+from touch2robot.config import load_profile
+from touch2robot.policy.dataset import build_dataset, read_rollouts, sources
+from touch2robot.policy.evaluate import episode_starts, load_policy, rollout_policy
+from touch2robot.policy.train import last_checkpoint, train
+from touch2robot.sim.config import SimConfig
+from touch2robot.sim.scene import build_scene
+
+CONFIG = load_profile("smoke").policy
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory: pytest.TempPathFactory):
+    torch.set_num_threads(1)
+    base = tmp_path_factory.mktemp("policy-train")
+    lake_io.write_rows(base / "lake", "rollouts", "teacher-pick", scripted_rollout_rows("pick", "touch2robot", 4, 30), partition={"method": "touch2robot"})
+    src = sources(base / "lake")[0]
+    sim = SimConfig(threads=1)
+    rollouts = read_rollouts(src.path)
+    summary = build_dataset(base / "ds", "pick", "touch2robot", rollouts, build_scene("pick", sim), sim, CONFIG)
+    logs: list[tuple[int, dict]] = []
+    result = train(Path(summary.root), summary.repo_id, CONFIG, base / "out", on_log=lambda s, m: logs.append((s, m)))
+    return summary, rollouts, result, logs, base
+
+
+def test_a_few_updates_lower_the_loss(trained) -> None:
+    _, _, result, logs, _ = trained
+    assert result.steps == CONFIG.steps and result.resumed_from == 0
+    assert [s for s, _ in logs] == list(range(CONFIG.log_freq, CONFIG.steps + 1, CONFIG.log_freq))
+    assert result.last_loss < result.first_loss - 0.02, [m["loss"] for _, m in logs]
+    assert logs[-1][1]["lr"] < logs[0][1]["lr"]  # LeRobot's cosine schedule decays
+    assert (Path(result.policy_dir) / "model.safetensors").is_file()
+
+
+def test_training_resumes_from_the_last_checkpoint(trained) -> None:
+    summary, _, result, _, base = trained
+    assert last_checkpoint(base / "out").name == f"{CONFIG.steps:06d}"
+    more = train(Path(summary.root), summary.repo_id, CONFIG, base / "out", steps=CONFIG.steps + CONFIG.log_freq)
+    assert more.resumed_from == CONFIG.steps and more.steps == CONFIG.steps + CONFIG.log_freq
+    assert np.isfinite(more.last_loss)
+
+
+def test_closed_loop_executes_16_predicted_actions_then_replans(trained) -> None:
+    _, rollouts, result, _, _ = trained
+    sim = SimConfig(threads=1)
+    scene = build_scene("pick", sim)
+    policy, pre, post = load_policy(Path(result.policy_dir), "cpu")
+    assert (policy.config.horizon, policy.config.n_action_steps, policy.config.n_obs_steps) == (24, 16, CONFIG.n_obs_steps)
+    chunks: list[torch.Tensor] = []
+    predict = policy.predict_action_chunk
+
+    def recording(batch):
+        out = predict(batch)
+        chunks.append(out)
+        return out
+
+    policy.predict_action_chunk = recording
+    starts = episode_starts(scene, rollouts, 1, seed=3, object_noise_m=CONFIG.object_noise_m)
+    out = rollout_policy(policy, pre, post, scene, sim, starts, CONFIG, video_episodes=1, steps=40)
+    assert out.steps == 40 and out.replans == 3 == len(chunks)  # steps 0, 16, 32
+    assert all(c.shape == (1, 16, 23) for c in chunks)
+    assert out.success.shape == (1,) and 0.0 <= out.progress[0] <= 1.0
+    assert out.videos[0].shape == (40, CONFIG.image_size, 2 * CONFIG.image_size, 3)
+
+
+@pytest.mark.slow
+def test_policy_flow_fills_policy_eval_and_mlflow(tmp_path: Path) -> None:
+    import mlflow
+
+    from flows.policy import policy
+    from touch2robot import catalog, tracking
+    from touch2robot.settings import DataLayout
+
+    layout = DataLayout(tmp_path / "data")
+    lake_io.write_rows(layout.lake, "rollouts", "teacher-pick", scripted_rollout_rows("pick", "contrack", 2, 24), partition={"method": "contrack"})
+    rows = policy(profile="smoke", data=str(layout.root))
+    assert [(r["task"], r["method"], r["origin"], r["episodes"]) for r in rows] == [("pick", "contrack", "teacher", CONFIG.eval_episodes)]
+    table = catalog.query(layout, "SELECT task, method, episodes, ci_low <= success_rate AND success_rate <= ci_high AS inside FROM policy_eval")
+    assert table.to_pylist() == [{"task": "pick", "method": "contrack", "episodes": CONFIG.eval_episodes, "inside": True}]
+    tracking.experiment(layout, "policy")
+    run = mlflow.get_run(rows[0]["mlflow_run"])
+    assert "train/loss" in run.data.metrics and "eval/success_rate" in run.data.metrics
+    assert run.data.tags["pretrained_backbone"].startswith("none")
+    artefacts = {a.path for a in mlflow.MlflowClient().list_artifacts(run.info.run_id)}
+    assert {"policy", "videos"} <= artefacts
+    again = policy(profile="smoke", data=str(layout.root))  # cached: the same rows, no retraining
+    assert again == rows

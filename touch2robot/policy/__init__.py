@@ -1,0 +1,11 @@
+"""Robot demonstrations as LeRobot datasets, LeRobot's Diffusion Policy trained on them (Table IX)
+and its closed-loop evaluation in the batched MuJoCo env, per task and data-collection method.
+
+Only the configuration is imported here (no torch, mujoco or lerobot): the dataset builder is
+``touch2robot.policy.dataset``, training ``touch2robot.policy.train``, evaluation
+``touch2robot.policy.evaluate``.
+"""
+
+from touch2robot.policy.config import PolicyConfig
+
+__all__ = ["PolicyConfig"]

@@ -1,0 +1,56 @@
+"""Configuration of the policy stage (defaults = the paper profile, Table IX).
+
+Robot demonstrations as LeRobot datasets (20 Hz, two RGB views), LeRobot's Diffusion Policy
+trained on them, and its closed-loop evaluation in the batched MuJoCo env. Everything not named
+here is LeRobot's own default (``DiffusionConfig``, ``TrainPipelineConfig``)."""
+
+from __future__ import annotations
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+
+class PolicyConfig(BaseModel):
+    """Dataset, Diffusion Policy training (Table IX) and closed-loop evaluation settings."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    # --- datasets
+    tasks: tuple[str, ...] | None = Field(None, description="tasks to learn; None = every task with rollouts")
+    methods: tuple[str, ...] | None = Field(None, description="data-collection methods to compare; None = every method with rollouts")
+    image_size: int = Field(224, ge=8, description="square RGB image side (px) of both camera views")
+    cameras: tuple[str, ...] = Field(("cam_left", "cam_right"), min_length=1, description="scene cameras recorded")
+    max_rollouts: int | None = Field(None, ge=1, description="rollouts per task x method put in a dataset; None = all")
+    replay_batch: int = Field(16, ge=1, description="rollouts replayed (and rendered) together as copies of one BatchEnv")
+    # --- Diffusion Policy (Table IX); None = LeRobot's default
+    n_obs_steps: int = Field(5, ge=1, description="observation steps the policy conditions on")
+    horizon: int = Field(24, ge=1, description="action steps predicted per inference")
+    n_action_steps: int = Field(16, ge=1, description="predicted steps executed before replanning")
+    lr: float = Field(1e-4, gt=0, description="Adam learning rate")
+    weight_decay: float = Field(1e-6, ge=0, description="Adam weight decay")
+    batch_size: int = Field(64, ge=1)
+    steps: int = Field(50_000, ge=1, description="optimizer updates")
+    down_dims: tuple[int, ...] | None = Field(None, min_length=1, description="UNet widths (small profiles shrink it)")
+    num_inference_steps: int | None = Field(None, ge=1, description="reverse diffusion steps at inference")
+    scheduler_warmup_steps: int | None = Field(None, ge=0, description="LR warm-up updates")
+    # --- training loop
+    save_freq: int = Field(10_000, ge=1, description="LeRobot checkpoint every N updates (the resume point)")
+    log_freq: int = Field(100, ge=1, description="loss and learning rate to MLflow every N updates")
+    num_workers: int = Field(4, ge=0, description="data-loader worker processes")
+    device: str | None = Field(None, description="torch device; None = CUDA when available, else CPU")
+    seed: int = Field(1000, description="training seed (LeRobot's default)")
+    # --- closed-loop evaluation
+    eval_episodes: int = Field(50, ge=1, description="seeded episodes per task x method")
+    eval_batch: int = Field(25, ge=1, description="episodes run together as copies of one BatchEnv")
+    eval_seed: int = Field(0)
+    object_noise_m: float = Field(0.005, ge=0, description="std of the object's start-position noise (x, y)")
+    video_episodes: int = Field(3, ge=0, description="episodes recorded as MLflow video artefacts")
+
+    @model_validator(mode="after")
+    def _consistent_horizon(self) -> PolicyConfig:
+        # LeRobot executes actions from the current observation on: n_obs - 1 + n_action <= horizon
+        if self.n_action_steps > self.horizon - self.n_obs_steps + 1:
+            raise ValueError(f"n_action_steps={self.n_action_steps} exceeds horizon - n_obs_steps + 1 = {self.horizon - self.n_obs_steps + 1}")
+        levels = len(self.down_dims) if self.down_dims is not None else 3
+        if self.horizon % 2**levels:
+            raise ValueError(f"horizon={self.horizon} must be a multiple of 2^len(down_dims) = {2**levels}")
+        return self

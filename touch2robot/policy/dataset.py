@@ -1,0 +1,313 @@
+"""Robot demonstrations as LeRobot datasets: each method's rollouts (lake table ``rollouts``)
+replayed in MuJoCo and recorded at 20 Hz with LeRobot's own dataset API (v3.0 format).
+
+Features of every frame (one frame per control step, the observation before the step's command):
+
+- ``observation.images.<camera>``: RGB (H, W, 3) from the scene cameras, rendered headless.
+- ``observation.state`` (23): the 16 LEAP joint positions (rad) and the wrist pose (px py pz qw qx
+  qy qz) of the hand's free wrist joint.
+- ``observation.environment_state`` (8): the tactile region forces (N) on T1..T4, P1..P4 (LeRobot's
+  Diffusion Policy reads this key and ignores unknown ones).
+- ``action`` (23): the 16 joint targets and the commanded wrist pose. The LEAP hand sits on a
+  floating (mocap) wrist, so a policy must command the wrist as well as the fingers: the action is
+  the full command a rollout applied, and replaying actions reproduces the rollout.
+- ``task``: a sentence naming the task.
+
+A rollout's row 0 is its reset state: replay resets BatchEnv copies to it and steps the recorded
+commands; the replayed states are what is recorded (so images and state agree), and the gap to the
+recorded states is reported (physics is deterministic per copy, so it stays small).
+"""
+
+from __future__ import annotations
+
+# the GL backend is chosen when this is imported, before mujoco: keep it first
+from touch2robot.sim import render as _render  # noqa: F401, I001
+
+import os
+import shutil
+import time
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from schemas.tables import ROBOT_REGIONS, ROLLOUT_ORIGINS, TASKS
+from touch2robot import lake as lake_io
+from touch2robot.leap import description as hd
+from touch2robot.policy.config import PolicyConfig
+from touch2robot.sim.config import SimConfig
+from touch2robot.sim.env import BatchEnv
+from touch2robot.sim.scene import Scene
+
+FPS = 20
+ROBOT_TYPE = "leap_hand_floating_wrist"
+WRIST_NAMES = ("wrist_px", "wrist_py", "wrist_pz", "wrist_qw", "wrist_qx", "wrist_qy", "wrist_qz")
+STATE_NAMES = (*hd.JOINT_NAMES, *WRIST_NAMES)
+ACTION_NAMES = (*(f"{j}_target" for j in hd.JOINT_NAMES), *(f"{w}_cmd" for w in WRIST_NAMES))
+TASK_INSTRUCTIONS = {
+    "pick": "pick up the box and place it at the goal",
+    "rotate": "rotate the object about the vertical axis",
+    "wipe": "wipe the table along the marked path",
+    "drawer": "pull the drawer open",
+}
+# which rollouts of a task x method become its demonstrations, best first
+ORIGIN_PREFERENCE = ("student", "teacher", "kinematic")
+assert set(ORIGIN_PREFERENCE) == set(ROLLOUT_ORIGINS)
+
+
+class RolloutError(ValueError):
+    """A rollouts file that cannot be replayed; the message names the file and what is wrong."""
+
+
+@dataclass(frozen=True)
+class Rollout:
+    """One rollout's per-step arrays (T steps), in step order."""
+
+    rollout_id: str
+    joint_position: np.ndarray  # (T, 16)
+    joint_target: np.ndarray  # (T, 16)
+    wrist_state: np.ndarray  # (T, 7) observed wrist body pose
+    wrist_pose: np.ndarray  # (T, 7) commanded
+    object_pose: np.ndarray  # (T, 7)
+    drawer_opening: np.ndarray  # (T,)
+    success: bool  # the rollout's own outcome (last row)
+
+    def __len__(self) -> int:
+        return len(self.joint_position)
+
+
+@dataclass(frozen=True)
+class Source:
+    """The rollouts file chosen for one task x method."""
+
+    task: str
+    method: str
+    origin: str
+    path: Path
+
+
+def dataset_id(task: str, method: str) -> str:
+    """LeRobot ``repo_id`` of a task x method dataset (local only: never pushed)."""
+    return f"touch2robot/{method}-{task}"
+
+
+def sources(lake: Path) -> list[Source]:
+    """Per task x method present in the lake's ``rollouts`` table, the best origin's file
+    (student > teacher > kinematic), sorted by task then method."""
+    best: dict[tuple[str, str], Source] = {}
+    for path in lake_io.files(lake, "rollouts"):
+        key, _, method = path.parent.name.partition("=")
+        origin, _, task = path.stem.partition("-")
+        if key != "method" or origin not in ORIGIN_PREFERENCE or task not in TASKS:
+            raise RolloutError(f"{path}: expected lake/rollouts/method=<m>/<origin>-<task>.parquet with origin in {ORIGIN_PREFERENCE}, task in {TASKS}")
+        cand = Source(task, method, origin, path)
+        old = best.get((task, method))
+        if old is None or ORIGIN_PREFERENCE.index(origin) < ORIGIN_PREFERENCE.index(old.origin):
+            best[(task, method)] = cand
+    return sorted(best.values(), key=lambda s: (TASKS.index(s.task), s.method))
+
+
+def _matrix(table: pa.Table, column: str, width: int, path: Path) -> np.ndarray:
+    values = table.column(column).combine_chunks()
+    flat = values.flatten().to_numpy(zero_copy_only=False) if pa.types.is_fixed_size_list(values.type) or pa.types.is_list(values.type) else None
+    if flat is None or flat.size != width * len(table):
+        raise RolloutError(f"{path}: column {column!r} must hold {width} values per row")
+    return flat.reshape(len(table), width).astype(np.float64)
+
+
+def read_rollouts(path: Path, limit: int | None = None) -> list[Rollout]:
+    """The rollouts of one file, by rollout id (the first ``limit``), each sorted by step;
+    steps must run 0, 1, 2, ... (row 0 is the reset state)."""
+    table = pq.read_table(path)
+    needed = ("rollout_id", "step", "joint_position", "joint_target", "wrist_state", "wrist_pose", "object_pose", "drawer_opening", "success")
+    missing = [c for c in needed if c not in table.column_names]
+    if missing:
+        raise RolloutError(f"{path}: missing columns {missing}")
+    ids = table.column("rollout_id").to_numpy(zero_copy_only=False)
+    order = np.lexsort((table.column("step").to_numpy(), ids))
+    table = table.take(pa.array(order))
+    ids = ids[order]
+    names, starts = np.unique(ids, return_index=True)
+    ends = np.append(starts[1:], len(ids))
+    out = []
+    for name, a, b in list(zip(names, starts, ends))[:limit]:
+        part = table.slice(a, b - a)
+        steps = part.column("step").to_numpy()
+        if not np.array_equal(steps, np.arange(len(steps))):
+            raise RolloutError(f"{path}: rollout {name!r} has steps {steps[:5]}... (expected 0, 1, 2, ... from its reset)")
+        out.append(
+            Rollout(
+                rollout_id=str(name),
+                joint_position=_matrix(part, "joint_position", 16, path),
+                joint_target=_matrix(part, "joint_target", 16, path),
+                wrist_state=_matrix(part, "wrist_state", 7, path),
+                wrist_pose=_matrix(part, "wrist_pose", 7, path),
+                object_pose=_matrix(part, "object_pose", 7, path),
+                drawer_opening=part.column("drawer_opening").to_numpy().astype(np.float64),
+                success=bool(part.column("success")[-1].as_py()),
+            )
+        )
+    if not out:
+        raise RolloutError(f"{path}: no rollouts")
+    return out
+
+
+def reset_to_first_rows(env: BatchEnv, rollouts: list[Rollout], object_pose: np.ndarray | None = None) -> None:
+    """Reset the copies of ``env`` to the rollouts' reset rows (the rollouts contract), optionally
+    with other object poses (evaluation jitters the start)."""
+    first = lambda field: np.stack([getattr(r, field)[0] for r in rollouts])  # noqa: E731
+    env.reset_pose(np.arange(env.n), first("joint_position"), first("wrist_state"),
+                   first("object_pose") if object_pose is None else object_pose, first("drawer_opening"))  # fmt: skip
+
+
+def observation_state(env: BatchEnv) -> np.ndarray:
+    """(N, 23) ``observation.state``: joint positions and the wrist free joint's pose."""
+    return np.concatenate([env.hand_qpos, env.wrist_pose], axis=1)
+
+
+class CameraRenderer:
+    """RGB frames of every copy of a BatchEnv from the named cameras: one mujoco.Renderer per
+    camera and one MjData, reused across frames."""
+
+    def __init__(self, scene: Scene, cameras: tuple[str, ...], size: int) -> None:
+        for cam in cameras:
+            if mujoco.mj_name2id(scene.model, mujoco.mjtObj.mjOBJ_CAMERA, cam) < 0:
+                raise ValueError(f"scene {scene.spec.name!r} has no camera {cam!r}")
+        self.model = scene.model
+        self.cameras = cameras
+        self.data = mujoco.MjData(self.model)
+        self.renderers = {cam: mujoco.Renderer(self.model, height=size, width=size) for cam in cameras}
+        self.frames = 0
+        self.seconds = 0.0
+
+    def render(self, env: BatchEnv, ids: np.ndarray | None = None) -> dict[str, np.ndarray]:
+        """{camera: (k, H, W, 3) uint8} for copies ``ids`` (default all) at their current state."""
+        start = time.perf_counter()
+        ids = np.arange(env.n) if ids is None else np.asarray(ids)
+        out = {cam: np.empty((ids.size, r.height, r.width, 3), np.uint8) for cam, r in self.renderers.items()}
+        for k, i in enumerate(ids):
+            mujoco.mj_setState(self.model, self.data, env.state[i], mujoco.mjtState.mjSTATE_FULLPHYSICS)
+            mujoco.mj_kinematics(self.model, self.data)
+            mujoco.mj_camlight(self.model, self.data)
+            for cam, r in self.renderers.items():
+                r.update_scene(self.data, camera=cam)
+                r.render(out=out[cam][k])
+        self.frames += ids.size * len(self.renderers)
+        self.seconds += time.perf_counter() - start
+        return out
+
+    def close(self) -> None:
+        for r in self.renderers.values():
+            r.close()
+
+
+def features(cfg: PolicyConfig) -> dict:
+    """LeRobot feature spec of the datasets (images stored as images, not video)."""
+    s = cfg.image_size
+    image = {"dtype": "image", "shape": (s, s, 3), "names": ["height", "width", "channels"]}
+    return {
+        **{f"observation.images.{cam}": image for cam in cfg.cameras},
+        "observation.state": {"dtype": "float32", "shape": (len(STATE_NAMES),), "names": list(STATE_NAMES)},
+        "observation.environment_state": {"dtype": "float32", "shape": (len(ROBOT_REGIONS),), "names": [f"force_{r}" for r in ROBOT_REGIONS]},
+        "action": {"dtype": "float32", "shape": (len(ACTION_NAMES),), "names": list(ACTION_NAMES)},
+    }
+
+
+@dataclass(frozen=True)
+class DatasetSummary:
+    """What one dataset build did."""
+
+    root: str
+    repo_id: str
+    episodes: int
+    frames: int
+    rollouts_succeeded: int  # rollouts whose recorded outcome is success
+    replay_max_joint_error_rad: float  # replayed vs recorded joint positions, worst step
+    replay_mean_joint_error_rad: float
+    render_frames: int  # camera images rendered
+    render_fps: float  # camera images per second of rendering
+    build_s: float
+
+
+def build_dataset(
+    root: Path, task: str, method: str, rollouts: list[Rollout], scene: Scene, sim: SimConfig, cfg: PolicyConfig
+) -> DatasetSummary:
+    """Replay ``rollouts`` in ``scene`` (``cfg.replay_batch`` at a time as BatchEnv copies),
+    render the cameras and write a finalised LeRobot dataset at ``root``. It is built in a
+    temporary sibling folder and renamed into place, so ``root`` never holds half a dataset."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    start = time.perf_counter()
+    root = Path(root)
+    root.parent.mkdir(parents=True, exist_ok=True)
+    tmp = root.with_name(f".{root.name}.{uuid.uuid4().hex[:8]}.tmp")
+    repo_id = dataset_id(task, method)
+    instruction = TASK_INSTRUCTIONS[task]
+    errors: list[np.ndarray] = []
+    renderer = CameraRenderer(scene, cfg.cameras, cfg.image_size)
+    try:
+        ds = LeRobotDataset.create(repo_id, FPS, features(cfg), root=tmp, robot_type=ROBOT_TYPE, use_videos=False)
+        frames = 0
+        for first in range(0, len(rollouts), cfg.replay_batch):
+            batch = rollouts[first : first + cfg.replay_batch]
+            episodes = _replay(batch, scene, sim, renderer, errors)
+            for ep in episodes:
+                for t in range(len(ep["action"])):
+                    ds.add_frame({**{k: v[t] for k, v in ep.items()}, "task": instruction})
+                ds.save_episode()
+                frames += len(ep["action"])
+        ds.finalize()
+        if root.exists():
+            shutil.rmtree(root)
+        os.replace(tmp, root)
+    finally:
+        renderer.close()
+        shutil.rmtree(tmp, ignore_errors=True)
+    err = np.concatenate(errors)
+    return DatasetSummary(
+        root=str(root),
+        repo_id=repo_id,
+        episodes=len(rollouts),
+        frames=frames,
+        rollouts_succeeded=sum(r.success for r in rollouts),
+        replay_max_joint_error_rad=float(err.max()),
+        replay_mean_joint_error_rad=float(err.mean()),
+        render_frames=renderer.frames,
+        render_fps=renderer.frames / renderer.seconds if renderer.seconds else float("nan"),
+        build_s=time.perf_counter() - start,
+    )
+
+
+def _replay(batch: list[Rollout], scene: Scene, sim: SimConfig, renderer: CameraRenderer, errors: list[np.ndarray]) -> list[dict[str, np.ndarray]]:
+    """Replay rollouts together; per rollout the frame arrays of its episode. Copies whose
+    rollout has ended keep stepping on their last command (cheaper than a ragged batch) and
+    are no longer recorded. Appends each step's worst joint error (replayed vs recorded)."""
+    env = BatchEnv(scene, sim, n_envs=len(batch))
+    try:
+        reset_to_first_rows(env, batch)
+        lengths = np.array([len(r) for r in batch])
+        cams = [f"observation.images.{c}" for c in renderer.cameras]
+        episodes = [{k: [] for k in (*cams, "observation.state", "observation.environment_state", "action")} for _ in batch]
+        for t in range(lengths.max()):
+            live = np.flatnonzero(lengths > t)
+            recorded = np.stack([batch[i].joint_position[t] for i in live])
+            errors.append(np.abs(env.hand_qpos[live] - recorded).max(axis=1))
+            images = renderer.render(env, live)
+            state, force = observation_state(env), env.region_force
+            targets = np.stack([r.joint_target[min(t, len(r) - 1)] for r in batch])
+            wrist = np.stack([r.wrist_pose[min(t, len(r) - 1)] for r in batch])
+            for k, i in enumerate(live):
+                ep = episodes[i]
+                for cam, key in zip(renderer.cameras, cams):
+                    ep[key].append(images[cam][k])
+                ep["observation.state"].append(state[i].astype(np.float32))
+                ep["observation.environment_state"].append(force[i].astype(np.float32))
+                ep["action"].append(np.concatenate([targets[i], wrist[i]]).astype(np.float32))
+            env.step(targets, wrist[:, :3], wrist[:, 3:])
+    finally:
+        env.close()
+    return [{k: np.stack(v) for k, v in ep.items()} for ep in episodes]

@@ -1,0 +1,180 @@
+"""Closed-loop evaluation of a trained Diffusion Policy in the batched MuJoCo env.
+
+Episodes start from the reset states of the dataset's rollouts (seeded choice, seeded Gaussian
+noise on the object's start x, y) and last the task's episode length. Every ``n_action_steps``
+control steps the policy sees the last ``n_obs_steps`` observations (the first one repeated at the
+start, as LeRobot does), predicts ``horizon`` actions and the ``n_action_steps`` from the current
+step on are executed (Table IX: 24 predicted, 16 executed, then replan). Success is the task's
+criterion at the episode's end; a Wilson interval bounds the success rate.
+"""
+
+from __future__ import annotations
+
+# the GL backend is chosen when this is imported, before mujoco: keep it first
+from touch2robot.sim import render as _render  # noqa: F401, I001
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from touch2robot.policy.config import PolicyConfig
+from touch2robot.policy.dataset import CameraRenderer, Rollout, observation_state, reset_to_first_rows
+from touch2robot.sim.config import SimConfig
+from touch2robot.sim.env import BatchEnv
+from touch2robot.sim.rsl_env import episode_steps
+from touch2robot.sim.scene import Scene
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (95 % by default); (0, 1) when n = 0."""
+    if n <= 0:
+        return 0.0, 1.0
+    p = successes / n
+    denom = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+@dataclass(frozen=True)
+class EpisodeStarts:
+    """Initial states of evaluation episodes: the rollouts each start is drawn from, and the
+    (jittered) object poses."""
+
+    rollouts: list[Rollout]
+    object_pose: np.ndarray  # (E, 7)
+
+    @property
+    def source(self) -> list[str]:
+        """The rollout id each start was drawn from."""
+        return [r.rollout_id for r in self.rollouts]
+
+
+def episode_starts(scene: Scene, rollouts: list[Rollout], episodes: int, seed: int, object_noise_m: float) -> EpisodeStarts:
+    """``episodes`` starts drawn (seeded, with replacement) from the rollouts' reset rows, the
+    object's start x, y jittered by N(0, object_noise_m^2) (not the drawer: it sits in its slide)."""
+    rng = np.random.default_rng(seed)
+    chosen = [rollouts[i] for i in rng.integers(0, len(rollouts), episodes)]
+    obj = np.stack([r.object_pose[0] for r in chosen])
+    if not scene.is_drawer:
+        obj[:, :2] += rng.normal(0.0, object_noise_m, (episodes, 2))
+    return EpisodeStarts(chosen, obj)
+
+
+@dataclass
+class EvalResult:
+    """Outcome of the evaluated episodes."""
+
+    success: np.ndarray  # (E,) bool
+    progress: np.ndarray  # (E,) final task progress
+    steps: int  # control steps per episode
+    replans: int  # policy inferences per episode
+    videos: list[np.ndarray] = field(default_factory=list)  # per recorded episode (T, H, 2W, 3) uint8
+
+    @property
+    def success_rate(self) -> float:
+        return float(self.success.mean())
+
+    @property
+    def wilson(self) -> tuple[float, float]:
+        return wilson_interval(int(self.success.sum()), len(self.success))
+
+
+def load_policy(policy_dir: Path, device: str | None = None):
+    """A trained LeRobot Diffusion Policy folder -> (policy in eval mode, preprocessor, postprocessor)."""
+    from lerobot.policies import make_pre_post_processors
+    from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
+
+    policy = DiffusionPolicy.from_pretrained(str(policy_dir), **({"device": device} if device else {}))
+    policy.eval()
+    overrides = {"device_processor": {"device": policy.config.device}}
+    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(policy_dir), preprocessor_overrides=overrides)
+    return policy, pre, post
+
+
+def _observation(env: BatchEnv, renderer: CameraRenderer) -> dict[str, np.ndarray]:
+    images = renderer.render(env)
+    obs = {f"observation.images.{cam}": img for cam, img in images.items()}
+    obs["observation.state"] = observation_state(env).astype(np.float32)
+    obs["observation.environment_state"] = env.region_force.astype(np.float32)
+    return obs
+
+
+def rollout_policy(policy, preprocessor, postprocessor, scene: Scene, sim: SimConfig, starts: EpisodeStarts, cfg: PolicyConfig,
+                   video_episodes: int = 0, steps: int | None = None) -> EvalResult:  # fmt: skip
+    """Run the episodes of ``starts`` closed loop, ``cfg.eval_batch`` at a time as BatchEnv copies.
+    ``steps`` defaults to the task's episode length. The first ``video_episodes`` are recorded
+    (both cameras side by side)."""
+    n_obs, n_act = policy.config.n_obs_steps, policy.config.n_action_steps
+    renderer = CameraRenderer(scene, tuple(k.removeprefix("observation.images.") for k in policy.config.image_features), cfg.image_size)
+    successes, progress, videos = [], [], []
+    replans = 0
+    try:
+        for first in range(0, len(starts.rollouts), cfg.eval_batch):
+            ids = slice(first, first + cfg.eval_batch)
+            env = BatchEnv(scene, sim, n_envs=len(starts.rollouts[ids]))
+            try:
+                reset_to_first_rows(env, starts.rollouts[ids], starts.object_pose[ids])
+                horizon = steps or episode_steps(env)
+                history: list[dict[str, np.ndarray]] = []
+                frames: list[np.ndarray] = []
+                record = max(0, min(video_episodes - first, env.n))
+                replans = 0
+                chunk = np.empty((env.n, 0, 23))
+                for t in range(horizon):
+                    obs = _observation(env, renderer)
+                    history = (history or [obs] * n_obs)[1:] + [obs]  # the first observation fills the window
+                    if record:
+                        cams = [obs[k][:record] for k in obs if k.startswith("observation.images.")]
+                        frames.append(np.concatenate(cams, axis=2))
+                    if t % n_act == 0:
+                        chunk = _predict(policy, preprocessor, postprocessor, history)
+                        replans += 1
+                    action = chunk[:, t % n_act].astype(np.float64)
+                    env.step(action[:, :16], action[:, 16:19], action[:, 19:23])
+                successes.append(env.success.copy())
+                progress.append(env.progress.copy())
+                if record:
+                    clip = np.stack(frames)
+                    videos.extend(clip[:, i] for i in range(record))
+            finally:
+                env.close()
+    finally:
+        renderer.close()
+    return EvalResult(np.concatenate(successes), np.concatenate(progress), horizon, replans, videos)
+
+
+def _predict(policy, preprocessor, postprocessor, history: list[dict[str, np.ndarray]]) -> np.ndarray:
+    """(N, n_action_steps, 23) actions from a window of observations (oldest first)."""
+    import torch
+
+    batch = {}
+    for key in history[0]:
+        stacked = torch.from_numpy(np.stack([h[key] for h in history], axis=1))  # (N, n_obs, ...)
+        if key.startswith("observation.images."):
+            stacked = stacked.permute(0, 1, 4, 2, 3).float() / 255.0  # (N, n_obs, 3, H, W) in [0, 1], as the dataset gives
+        batch[key] = stacked
+    batch = preprocessor(batch)
+    with torch.no_grad():
+        policy.reset()  # empty queues: predict from this window, not from cached observations
+        actions = policy.predict_action_chunk(batch)  # normalised (N, n_action_steps, 23)
+    return postprocessor(actions).cpu().numpy()
+
+
+def write_video(frames: np.ndarray, path: Path, fps: int = 20) -> Path:
+    """(T, H, W, 3) uint8 frames -> H.264 MP4 (PyAV)."""
+    import av
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    h, w = frames.shape[1:3]
+    with av.open(str(path), mode="w") as container:
+        stream = container.add_stream("libx264", rate=fps)
+        stream.width, stream.height = w - w % 2, h - h % 2
+        stream.pix_fmt = "yuv420p"
+        for frame in frames:
+            packet = stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(frame[: stream.height, : stream.width]), format="rgb24"))
+            container.mux(packet)
+        container.mux(stream.encode())
+    return path

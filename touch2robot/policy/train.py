@@ -1,0 +1,233 @@
+"""LeRobot's Diffusion Policy trained on one LeRobot dataset, with LeRobot's own parts throughout:
+``TrainPipelineConfig`` (policy presets: Adam + cosine schedule with warm-up), ``make_dataset``
+(delta timestamps from the policy's observation/action indices, ImageNet image statistics),
+``make_policy``, ``make_pre_post_processors``, ``EpisodeAwareSampler``, ``update_policy`` under an
+``Accelerator``, and ``save_checkpoint`` / ``load_training_state`` for the checkpoints.
+
+What this adds to ``lerobot-train``: a callback receiving the loss and learning rate (the stage
+streams them to MLflow), and resumption from the output folder's last checkpoint without a
+command-line dance. Table IX sets n_obs_steps, horizon, n_action_steps, lr, weight decay, batch
+size and steps; ``pretrained_backbone_weights=None`` (a ResNet-18 from scratch: no downloads);
+``drop_n_last_frames`` follows LeRobot's formula for the chosen horizon; everything else is
+LeRobot's default. ``lerobot_train_args`` gives the same run as a ``lerobot-train`` command line.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from touch2robot.policy.config import PolicyConfig
+
+CHECKPOINTS = "checkpoints"
+LAST = "last"
+PRETRAINED = "pretrained_model"
+
+
+def diffusion_kwargs(cfg: PolicyConfig) -> dict:
+    """The DiffusionConfig fields this project sets (the rest is LeRobot's default)."""
+    kw: dict = {
+        "n_obs_steps": cfg.n_obs_steps,
+        "horizon": cfg.horizon,
+        "n_action_steps": cfg.n_action_steps,
+        "drop_n_last_frames": cfg.horizon - cfg.n_action_steps - cfg.n_obs_steps + 1,
+        "optimizer_lr": cfg.lr,
+        "optimizer_weight_decay": cfg.weight_decay,
+        "pretrained_backbone_weights": None,
+        "push_to_hub": False,
+    }
+    if cfg.down_dims is not None:
+        kw["down_dims"] = tuple(cfg.down_dims)
+    if cfg.num_inference_steps is not None:
+        kw["num_inference_steps"] = cfg.num_inference_steps
+    if cfg.scheduler_warmup_steps is not None:
+        kw["scheduler_warmup_steps"] = cfg.scheduler_warmup_steps
+    if cfg.device is not None:
+        kw["device"] = cfg.device
+    return kw
+
+
+def pipeline_config(dataset_root: Path, repo_id: str, cfg: PolicyConfig, output_dir: Path, steps: int | None = None):
+    """LeRobot's ``TrainPipelineConfig`` of a run (no hub, no wandb, optimizer/scheduler presets)."""
+    from lerobot.configs.default import DatasetConfig, WandBConfig
+    from lerobot.configs.train import TrainPipelineConfig
+    from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
+
+    policy = DiffusionConfig(**diffusion_kwargs(cfg))
+    pipeline = TrainPipelineConfig(
+        dataset=DatasetConfig(repo_id=repo_id, root=str(dataset_root)),
+        policy=policy,
+        output_dir=Path(output_dir),
+        seed=cfg.seed,
+        num_workers=cfg.num_workers,
+        batch_size=cfg.batch_size,
+        steps=steps or cfg.steps,
+        log_freq=cfg.log_freq,
+        save_freq=cfg.save_freq,
+        wandb=WandBConfig(enable=False),
+    )
+    # what TrainPipelineConfig.validate() does for presets (validate also parses sys.argv)
+    pipeline.optimizer = policy.get_optimizer_preset()
+    pipeline.scheduler = policy.get_scheduler_preset()
+    return pipeline
+
+
+def lerobot_train_args(dataset_root: Path, repo_id: str, cfg: PolicyConfig, output_dir: Path, steps: int | None = None, save: bool = True) -> list[str]:
+    """Command-line arguments of ``lerobot-train`` for the same run as ``train``."""
+    kw = diffusion_kwargs(cfg)
+    args = [
+        f"--dataset.repo_id={repo_id}",
+        f"--dataset.root={dataset_root}",
+        "--policy.type=diffusion",
+        f"--output_dir={output_dir}",
+        f"--seed={cfg.seed}",
+        f"--num_workers={cfg.num_workers}",
+        f"--batch_size={cfg.batch_size}",
+        f"--steps={steps or cfg.steps}",
+        f"--log_freq={cfg.log_freq}",
+        f"--save_freq={cfg.save_freq}",
+        f"--save_checkpoint={str(save).lower()}",
+        "--wandb.enable=false",
+    ]
+    for key, value in kw.items():
+        if value is None:
+            text = "null"
+        elif isinstance(value, bool):
+            text = str(value).lower()
+        elif isinstance(value, tuple):
+            text = "[" + ",".join(map(str, value)) + "]"
+        else:
+            text = str(value)
+        args.append(f"--policy.{key}={text}")
+    return args
+
+
+def last_checkpoint(output_dir: Path) -> Path | None:
+    """The output folder's last complete checkpoint (LeRobot's ``checkpoints/last`` link)."""
+    last = Path(output_dir) / CHECKPOINTS / LAST
+    return last.resolve() if (last / PRETRAINED).is_dir() and (last / "training_state").is_dir() else None
+
+
+@dataclass(frozen=True)
+class TrainResult:
+    """What one ``train`` call did."""
+
+    policy_dir: str  # the final LeRobot pretrained_model folder (config, weights, processors)
+    steps: int  # updates done in total
+    resumed_from: int  # the step the call started at (0 = fresh)
+    first_loss: float  # mean loss over the call's first logging window
+    last_loss: float  # mean loss over its last logging window
+    samples_per_s: float  # training samples per second over the call (data loading included)
+    seconds: float
+
+
+def train(
+    dataset_root: Path,
+    repo_id: str,
+    cfg: PolicyConfig,
+    output_dir: Path,
+    steps: int | None = None,
+    on_log: Callable[[int, dict[str, float]], None] | None = None,
+) -> TrainResult:
+    """Train (or resume from ``output_dir``'s last checkpoint) LeRobot's Diffusion Policy on a
+    LeRobot dataset for ``steps`` updates in total (default ``cfg.steps``). Every ``cfg.log_freq``
+    updates ``on_log(step, {"loss", "lr", "grad_norm", "samples_per_s"})`` gets the window's means."""
+    import torch
+    from accelerate import Accelerator
+    from lerobot.common.train_utils import get_step_checkpoint_dir, load_training_state, save_checkpoint, update_last_checkpoint
+    from lerobot.datasets import EpisodeAwareSampler, compute_sampler_state
+    from lerobot.datasets.factory import make_dataset
+    from lerobot.optim.factory import make_optimizer_and_scheduler
+    from lerobot.policies import make_policy, make_pre_post_processors
+    from lerobot.scripts.lerobot_train import update_policy
+    from lerobot.utils.logging_utils import AverageMeter, MetricsTracker
+    from lerobot.utils.random_utils import set_seed
+    from lerobot.utils.utils import cycle
+
+    output_dir = Path(output_dir)
+    pipeline = pipeline_config(dataset_root, repo_id, cfg, output_dir, steps)
+    resume = last_checkpoint(output_dir)
+    accelerator = Accelerator(step_scheduler_with_optimizer=False, cpu=pipeline.policy.device == "cpu")
+    set_seed(pipeline.seed, accelerator=accelerator)
+    dataset = make_dataset(pipeline)
+    if resume is not None:
+        pipeline.policy.pretrained_path = resume / PRETRAINED
+    policy = make_policy(cfg=pipeline.policy, ds_meta=dataset.meta)
+    if resume is None:
+        preprocessor, postprocessor = make_pre_post_processors(pipeline.policy, dataset_stats=dataset.meta.stats)
+    else:  # the checkpoint's processors carry the statistics the run started with
+        preprocessor, postprocessor = make_pre_post_processors(
+            pipeline.policy,
+            pretrained_path=str(resume / PRETRAINED),
+            preprocessor_overrides={"device_processor": {"device": accelerator.device.type}},
+        )
+    optimizer, scheduler = make_optimizer_and_scheduler(pipeline, policy)
+    step = 0
+    if resume is not None:
+        step, optimizer, scheduler = load_training_state(resume, optimizer, scheduler)
+    start_step = step
+    sampler = EpisodeAwareSampler(
+        dataset.meta.episodes["dataset_from_index"],
+        dataset.meta.episodes["dataset_to_index"],
+        episode_indices_to_use=dataset.episodes,
+        drop_n_last_frames=pipeline.policy.drop_n_last_frames,
+        shuffle=True,
+        seed=pipeline.seed,
+        absolute_to_relative_idx=dataset.absolute_to_relative_idx,
+    )
+    if step:  # continue the data order where the checkpoint left it
+        sampler.load_state_dict(compute_sampler_state(step, len(sampler), pipeline.batch_size, 1))
+    loader = torch.utils.data.DataLoader(
+        dataset,
+        batch_size=pipeline.batch_size,
+        sampler=sampler,
+        num_workers=pipeline.num_workers,
+        pin_memory=accelerator.device.type == "cuda",
+        drop_last=False,
+        persistent_workers=pipeline.num_workers > 0,
+        prefetch_factor=pipeline.prefetch_factor if pipeline.num_workers > 0 else None,
+    )
+    policy, optimizer, loader, scheduler = accelerator.prepare(policy, optimizer, loader, scheduler)
+    meters = {name: AverageMeter(name) for name in ("loss", "grad_norm", "lr", "update_s", "dataloading_s")}
+    tracker = MetricsTracker(pipeline.batch_size, dataset.num_frames, dataset.num_episodes, meters, initial_step=step, accelerator=accelerator)
+    batches = cycle(loader)
+    windows: list[float] = []
+    window_start = started = time.perf_counter()
+    while step < pipeline.steps:
+        t0 = time.perf_counter()
+        batch = preprocessor(next(batches))
+        tracker.dataloading_s = time.perf_counter() - t0
+        tracker, _ = update_policy(tracker, policy, batch, optimizer, pipeline.optimizer.grad_clip_norm, accelerator=accelerator, lr_scheduler=scheduler)
+        step += 1
+        tracker.step()
+        if step % pipeline.log_freq == 0 or step == pipeline.steps:
+            now = time.perf_counter()
+            figures = {
+                "loss": tracker.loss.avg,
+                "lr": tracker.lr.val,
+                "grad_norm": tracker.grad_norm.avg,
+                "samples_per_s": tracker.loss.count * pipeline.batch_size / (now - window_start),
+            }
+            windows.append(figures["loss"])
+            if on_log is not None:
+                on_log(step, figures)
+            tracker.reset_averages()
+            window_start = now
+        if step % pipeline.save_freq == 0 or step == pipeline.steps:
+            ckpt = get_step_checkpoint_dir(output_dir, pipeline.steps, step)
+            save_checkpoint(ckpt, step, pipeline, accelerator.unwrap_model(policy), optimizer, scheduler, preprocessor, postprocessor, num_processes=1, batch_size=pipeline.batch_size)
+            update_last_checkpoint(ckpt)
+    seconds = time.perf_counter() - started
+    final = last_checkpoint(output_dir)
+    assert final is not None
+    return TrainResult(
+        policy_dir=str(final / PRETRAINED),
+        steps=step,
+        resumed_from=start_step,
+        first_loss=windows[0] if windows else float("nan"),
+        last_loss=windows[-1] if windows else float("nan"),
+        samples_per_s=(step - start_step) * pipeline.batch_size / seconds if seconds else float("nan"),
+        seconds=seconds,
+    )
