@@ -53,11 +53,11 @@ def run_env(env: BatchEnv, steps: int) -> tuple[float, float]:
 
 def _raw_control(env: BatchEnv, steps: int) -> np.ndarray:
     targets, wrist = commands(env, steps)
-    nu, sub = env.model.nu, env.cfg.substeps
-    control = np.empty((steps, env.n, sub, nu + 7))
+    nu, nv, sub = env.model.nu, env.model.nv, env.cfg.substeps
+    control = np.zeros((steps, env.n, sub, nu + nv + 7))  # ctrl, qfrc_applied (none), mocap pos, quat
     control[..., :nu] = targets[:, None, None, :]
-    control[..., nu : nu + 3] = wrist[:, None, None, :]
-    control[..., nu + 3 :] = env.scene.home_wrist_quat
+    control[..., nu + nv : nu + nv + 3] = wrist[:, None, None, :]
+    control[..., nu + nv + 3 :] = env.scene.home_wrist_quat
     return control
 
 

@@ -86,7 +86,8 @@ def test_policy_flow_fills_policy_eval_and_mlflow(tmp_path: Path) -> None:
 
     layout = DataLayout(tmp_path / "data")
     lake_io.write_rows(layout.lake, "rollouts", "teacher-pick", scripted_rollout_rows("pick", "contrack", 2, 24), partition={"method": "contrack"})
-    rows = policy(profile="smoke", data=str(layout.root))
+    lake_io.write_rows(layout.lake, "rollouts", "teacher-pick", scripted_rollout_rows("pick", "dexmachina", 2, 24), partition={"method": "dexmachina"})
+    rows = policy(profile="smoke", data=str(layout.root), methods=["contrack"])  # the filter leaves one of the two
     assert [(r["task"], r["method"], r["origin"], r["episodes"]) for r in rows] == [("pick", "contrack", "teacher", CONFIG.eval_episodes)]
     table = catalog.query(layout, "SELECT task, method, episodes, ci_low <= success_rate AND success_rate <= ci_high AS inside FROM policy_eval")
     assert table.to_pylist() == [{"task": "pick", "method": "contrack", "episodes": CONFIG.eval_episodes, "inside": True}]
@@ -96,5 +97,5 @@ def test_policy_flow_fills_policy_eval_and_mlflow(tmp_path: Path) -> None:
     assert run.data.tags["pretrained_backbone"].startswith("none")
     artefacts = {a.path for a in mlflow.MlflowClient().list_artifacts(run.info.run_id)}
     assert {"policy", "videos"} <= artefacts
-    again = policy(profile="smoke", data=str(layout.root))  # cached: the same rows, no retraining
+    again = policy(profile="smoke", data=str(layout.root), methods=["contrack"])  # cached: the same rows, no retraining
     assert again == rows

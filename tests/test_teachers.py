@@ -22,7 +22,7 @@ from touch2robot.sim.env import BatchEnv
 from touch2robot.sim.scene import build_scene
 from touch2robot.teachers import rollouts as ro
 from touch2robot.teachers.config import AssistanceConfig, MethodConfig, PPOConfig, TeacherConfig
-from touch2robot.teachers.objective import DemoTracking, References, stack_references
+from touch2robot.teachers.objective import NUM_ACTIONS, DemoTracking, References, stack_references
 from touch2robot.teachers.reference import ReferenceError, load_reference
 from touch2robot.teachers.train import checkpoints, load_latest, make_teacher_env, runner_config, train
 
@@ -98,8 +98,8 @@ def test_methods_share_observations_and_differ_in_their_contact_term(refs: dict[
         env = _env("rotate")
         objective = DemoTracking(refs["rotate"], SMALL, method)
         objective.reset(env, np.arange(env.n), np.random.default_rng(0))
-        env.step(*objective.command(env, np.zeros((env.n, 16))))
-        _, terms = objective.reward(env, np.zeros((env.n, 16)))
+        env.step(*objective.command(env, np.zeros((env.n, NUM_ACTIONS))))
+        _, terms = objective.reward(env, np.zeros((env.n, NUM_ACTIONS)))
         seen[method] = (set(terms), objective.observe(env)["actor"].shape)
         env.close()
     assert "tactile" in seen["touch2robot"][0] and "contact" not in seen["touch2robot"][0]
@@ -115,7 +115,7 @@ def _tracking_error(refs: References, config: TeacherConfig, method: str, gain: 
     objective.reset(env, np.arange(1), np.random.default_rng(0))
     errors = []
     for _ in range(int(refs.length[0]) - 1):
-        env.step(*objective.command(env, np.zeros((1, 16))))
+        env.step(*objective.command(env, np.zeros((1, NUM_ACTIONS))))
         errors.append(np.linalg.norm(env.object_pos - objective._ref("object_pos", env), axis=1)[0])
     env.close()
     return float(np.mean(errors))

@@ -52,7 +52,7 @@ class RewardWeights(_Frozen):
     imitation: float = 0.5  # exp(-|q_hand - q_ref|^2 / sigma_joint)
     tactile: float = 0.0  # touch2robot: per-step F1 of the 8 sim contacts vs the human preference
     contact: float = 0.0  # contrack / dexmachina: regions reach their geometric contact points
-    action_rate: float = 0.05  # -|a_t - a_(t-1)|^2 / 16
+    action_rate: float = 0.05  # -mean (a_t - a_(t-1))^2 over the 22 action components
     energy: float = 0.002  # -sum |servo torque x joint speed|
     termination: float = 2.0  # one-off penalty when tracking is lost
 
@@ -111,6 +111,8 @@ class TeacherConfig(_Frozen):
     ppo: PPOConfig = PPOConfig()
     variants: dict[str, MethodConfig] = Field(default_factory=default_methods)
     action_scale: float = Field(0.25, gt=0, description="rad: joint target = kinematic reference + scale x clip(action, -1, 1)")
+    wrist_pos_scale_m: float = Field(0.04, ge=0, description="m: wrist position residual per unit action (0 = the kinematic wrist)")
+    wrist_rot_scale_rad: float = Field(0.3, ge=0, description="rad: wrist rotation residual per unit action")
     sigma_pos: float = Field(0.02, gt=0, description="m, object position kernel")
     sigma_rot: float = Field(0.3, gt=0, description="rad, object orientation kernel")
     sigma_joint: float = Field(0.5, gt=0, description="rad^2, hand imitation kernel")

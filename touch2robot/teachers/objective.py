@@ -3,9 +3,12 @@
 Each copy of the batched env samples a demonstration of the task and starts from its first frame
 (hand at the kinematic retargeting, object at its recorded pose). Per control step:
 
-- **Action** (16): a residual around the kinematic reference, joint target = q_ref(k+1) + scale x
-  clip(a, -1, 1). The wrist follows the reference wrist pose (the mocap arm); the teacher corrects
-  the fingers only, which is also what the student outputs (16 joint targets).
+- **Action** (22): residuals around the kinematic reference, all in [-1, 1]: 16 joint targets,
+  q = q_ref(k+1) + ``action_scale`` x a[:16], and the wrist (the mocap arm) shifted by
+  ``wrist_pos_scale_m`` x a[16:19] (world) and turned by ``wrist_rot_scale_rad`` x a[19:22] (axis x
+  angle in the wrist frame). The wrist residual closes the embodiment gap the kinematic retargeting
+  leaves (the LEAP hand is larger than a human hand, so at the human's wrist pose its fingertips
+  land beyond the object); the teacher learns where to put the hand, not just how to close it.
 - **Observation** (actor = critic): hand state, the next two reference frames relative to it, the
   object's pose and its next reference, the eight region forces, the contact reference of the method
   (the human's tactile preference for touch2robot; geometric contact flags and the offsets from each
@@ -29,6 +32,18 @@ from touch2robot.teachers.config import MethodConfig, TeacherConfig
 from touch2robot.teachers.reference import DemoReference
 
 GRAVITY = 9.81
+JOINT_ACTIONS = slice(0, 16)
+WRIST_POS_ACTIONS = slice(16, 19)
+WRIST_ROT_ACTIONS = slice(19, 22)
+NUM_ACTIONS = 22
+
+
+def quat_from_rotvec(v: np.ndarray) -> np.ndarray:
+    """(N, 4) unit quaternions of axis x angle vectors (N, 3)."""
+    angle = np.linalg.norm(v, axis=1, keepdims=True)
+    half = 0.5 * angle
+    axis = v / np.maximum(angle, 1e-12)
+    return np.concatenate([np.cos(half), np.sin(half) * axis], axis=1)
 
 
 class References(NamedTuple):
@@ -102,7 +117,7 @@ def step_f1(sim: np.ndarray, ref: np.ndarray) -> np.ndarray:
 class DemoTracking:
     """The rsl-rl Objective of a teacher of one task and method (see the module docstring)."""
 
-    num_actions = 16
+    num_actions = NUM_ACTIONS
 
     def __init__(self, refs: References, config: TeacherConfig, method: str) -> None:
         self.refs = refs
@@ -111,7 +126,7 @@ class DemoTracking:
         self.method: MethodConfig = config.method(method)
         self.w = self.method.rewards
         self.demo = np.zeros(0, dtype=np.int64)
-        self.prev_action = np.zeros((0, 16))
+        self.prev_action = np.zeros((0, NUM_ACTIONS))
         self.task_return = np.zeros(0)
         # ConTrack: per-clip best task return and dual variable
         self.best_task = np.full(len(refs.ids), -np.inf)
@@ -136,7 +151,7 @@ class DemoTracking:
         """Copies ``ids`` start a (sampled, or in rollouts prescribed) demonstration at its first frame."""
         if self.demo.shape[0] != env.n:
             self.demo = np.zeros(env.n, dtype=np.int64)
-            self.prev_action = np.zeros((env.n, 16))
+            self.prev_action = np.zeros((env.n, NUM_ACTIONS))
             self.task_return = np.zeros(env.n)
         ids = np.asarray(ids)
         if self.eval_demos is not None:
@@ -151,11 +166,14 @@ class DemoTracking:
         self.task_return[ids] = 0.0
 
     def command(self, env: BatchEnv, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
-        """Reference-plus-residual joint targets, the reference wrist pose, and (DexMachina) the
-        assistance force on the object, all for the next frame."""
-        targets = self._ref("joints", env, 1) + self.cfg.action_scale * np.clip(actions, -1.0, 1.0)
+        """Reference-plus-residual joint targets and wrist pose, and (DexMachina) the assistance
+        force on the object, all for the next frame."""
+        a = np.clip(actions, -1.0, 1.0)
+        targets = self._ref("joints", env, 1) + self.cfg.action_scale * a[:, JOINT_ACTIONS]
+        wrist_pos = self._ref("wrist_pos", env, 1) + self.cfg.wrist_pos_scale_m * a[:, WRIST_POS_ACTIONS]
+        wrist_quat = quat_mul(self._ref("wrist_quat", env, 1), quat_from_rotvec(self.cfg.wrist_rot_scale_rad * a[:, WRIST_ROT_ACTIONS]))
         force = self.assistance_force(env) if self.assist_gain > 0 else None
-        return targets, self._ref("wrist_pos", env, 1), self._ref("wrist_quat", env, 1), force
+        return targets, wrist_pos, wrist_quat, force
 
     def assistance_force(self, env: BatchEnv) -> np.ndarray:
         """DexMachina's virtual object controller: a mass-scaled PD pull (plus gravity
@@ -234,7 +252,7 @@ class DemoTracking:
             closeness = np.exp(-np.linalg.norm(env.region_pos - points, axis=2) / cfg.sigma_contact)
             terms["contact"] = w.contact * np.sum(flags * closeness, axis=1) / np.maximum(flags.sum(axis=1), 1)
         a = np.clip(actions, -1.0, 1.0)
-        terms["action_rate"] = -w.action_rate * np.sum((a - self.prev_action) ** 2, axis=1) / 16.0
+        terms["action_rate"] = -w.action_rate * np.mean((a - self.prev_action) ** 2, axis=1)
         if self._kp is None:
             self._kp = env.model.actuator_gainprm[:, 0].copy()
         torque = self._kp * (env.joint_targets - env.hand_qpos)

@@ -18,14 +18,14 @@ from schemas.tables import ROBOT_REGIONS, SCHEMAS
 from touch2robot.contacts import long_rows
 from touch2robot.sim.env import BatchEnv
 from touch2robot.metrics import contact_scores
-from touch2robot.teachers.objective import DemoTracking, References
+from touch2robot.teachers.objective import NUM_ACTIONS, DemoTracking, References
 
 Policy = Callable[[dict[str, np.ndarray]], np.ndarray]
 
 
 def zero_residual(obs: dict[str, np.ndarray]) -> np.ndarray:
-    """The kinematic baseline's 'policy': the joint targets are the kinematic reference itself."""
-    return np.zeros((len(obs["actor"]), 16))
+    """The kinematic baseline's 'policy': joint targets and wrist are the kinematic reference itself."""
+    return np.zeros((len(obs["actor"]), NUM_ACTIONS))
 
 
 def _fixed(values: np.ndarray, dtype: pa.DataType) -> pa.FixedSizeListArray:
