@@ -200,22 +200,23 @@ def _mean_return(vec_env, runner, episodes_steps: int) -> float:
 
 @pytest.mark.usefixtures("one_torch_thread")
 def test_teacher_return_rises_with_training(refs: dict[str, References]) -> None:
-    """Smoke-sized PPO on the Touch2Robot objective (rotate): the mean first-episode return of the
-    policy after training exceeds the untrained policy's."""
+    """Smoke-sized PPO (Table VII's algorithm and learning rate, small sizes) on the Touch2Robot
+    objective for Drawer: the mean first-episode return of the training policy rises. (The
+    kinematic reference alone loses the drawer after ~3 s; the residuals learn to hold it.)"""
     from rsl_rl.runners import OnPolicyRunner
 
     torch.manual_seed(0)
     config = SMALL.model_copy(update={"sim": SimConfig(n_envs=32)})
-    vec_env = make_teacher_env("rotate", refs["rotate"], config, "touch2robot")
-    runner = OnPolicyRunner(vec_env, runner_config(config.ppo.model_copy(update={"learning_rate": 1e-3})), log_dir=None, device="cpu")
-    steps = int(refs["rotate"].length[0])
+    vec_env = make_teacher_env("drawer", refs["drawer"], config, "touch2robot")
+    runner = OnPolicyRunner(vec_env, runner_config(config.ppo), log_dir=None, device="cpu")
+    steps = int(refs["drawer"].length[0])
     curve = [_mean_return(vec_env, runner, steps)]
     for _ in range(3):
-        runner.learn(8)
+        runner.learn(10)
         curve.append(_mean_return(vec_env, runner, steps))
     vec_env.env.close()
-    print(f"teacher mean episode return after 0/8/16/24 PPO iterations: {[round(c, 2) for c in curve]}")
-    assert curve[-1] > curve[0] * 1.05
+    print(f"teacher mean episode return after 0/10/20/30 PPO iterations: {[round(c, 1) for c in curve]}")
+    assert curve[-1] > 1.08 * curve[0]
 
 
 @pytest.mark.usefixtures("one_torch_thread")
