@@ -34,6 +34,8 @@ def _sql_type(t: pa.DataType) -> str:
         return "FLOAT"
     if pa.types.is_int64(t):
         return "BIGINT"
+    if pa.types.is_int32(t):
+        return "INTEGER"
     if pa.types.is_boolean(t):
         return "BOOLEAN"
     if pa.types.is_timestamp(t):
