@@ -29,6 +29,40 @@ def _layout(data: Path | None):
     return configure(DataLayout.from_env(data))
 
 
+def _run_flow(entrypoint: str, **parameters: object) -> object:
+    """Call the flow ``module:function`` with ``parameters`` against a Prefect API that
+    ends with this command: the user's server when PREFECT_API_URL (environment or Prefect
+    profile) names one, else a server of this process on the data folder's database
+    (touch2robot.local_server: unlike Prefect's temporary server, it cannot outlive a
+    killed run). The server starts first and comes up while Prefect and the flow's
+    modules are imported. Call after ``_layout``: Prefect reads its settings once, when
+    first imported."""
+    import atexit
+    import importlib
+
+    from touch2robot.local_server import PrefectApi, stop_on_termination
+
+    module, function = entrypoint.split(":")
+    with stop_on_termination():
+        api = None if os.environ.get("PREFECT_API_URL") else PrefectApi(dict(os.environ)).start()
+        from prefect.settings import PREFECT_API_URL, get_current_settings, temporary_settings
+
+        settings = get_current_settings()
+        if api is not None and settings.api.url:  # the user's Prefect profile names a server
+            api.stop()
+            api = None
+        flow = getattr(importlib.import_module(module), function)
+        if api is None:
+            return flow(**parameters)
+        # stopped at exit, after Prefect's log and event workers have sent what they hold
+        # (they drain at thread shutdown, before atexit), as Prefect stops its own server
+        atexit.register(api.stop)
+        url = api.wait_ready(settings.server.ephemeral.startup_timeout_seconds)
+        os.environ["PREFECT_API_URL"] = url  # for processes the flow starts (task runners)
+        with temporary_settings({PREFECT_API_URL: url}):
+            return flow(**parameters)
+
+
 def _check_profile(profile: str) -> None:
     from touch2robot.config import ProfileError, load_profile
 
@@ -72,9 +106,7 @@ def ingest(
     `ingest`, cached per file content): bad files are quarantined with a reason."""
     _check_profile(profile)
     layout = _layout(data)
-    from flows.ingest import ingest as ingest_flow
-
-    result = ingest_flow(profile=profile, data=str(layout.root), folder=str(folder.resolve()) if folder else None)
+    result = _run_flow("flows.ingest:ingest", profile=profile, data=str(layout.root), folder=str(folder.resolve()) if folder else None)
     console.print(result)
 
 
@@ -88,9 +120,7 @@ def evaluate(
     onset error) and the user study; tables contact_metrics, onset_errors, user_study."""
     _check_profile(profile)
     layout = _layout(data)
-    from flows.evaluate import evaluate as evaluate_flow
-
-    console.print(evaluate_flow(profile=profile, data=str(layout.root), ratings=str(ratings.resolve()) if ratings else None))
+    console.print(_run_flow("flows.evaluate:evaluate", profile=profile, data=str(layout.root), ratings=str(ratings.resolve()) if ratings else None))
 
 
 @app.command()
@@ -102,9 +132,7 @@ def run(
     """Run every stage that exists, as one Prefect flow (`pipeline`), on a profile."""
     _check_profile(profile)
     layout = _layout(data)
-    from flows.pipeline import pipeline
-
-    console.print(pipeline(profile=profile, data=str(layout.root), synthesize=synthesize))
+    console.print(_run_flow("flows.pipeline:pipeline", profile=profile, data=str(layout.root), synthesize=synthesize))
     console.print(f"catalog: {layout.catalog}\nMLflow:  touch2robot ui --data {layout.root}")
 
 
