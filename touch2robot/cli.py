@@ -172,20 +172,61 @@ def sql(
 def ui(
     data: DataOpt = None,
     port: Annotated[int, typer.Option(help="port for the MLflow UI")] = 5000,
-    start: Annotated[bool, typer.Option("--start", help="start the MLflow UI (else print the command)")] = False,
+    prefect_port: Annotated[int, typer.Option(help="port for the Prefect UI")] = 4200,
+    start: Annotated[bool, typer.Option("--start", help="start the UIs (else print the commands)")] = False,
 ) -> None:
-    """The MLflow UI on the local tracking file (and how to open the Prefect UI)."""
-    layout = _layout(data)
-    from touch2robot.tracking import tracking_uri
+    """The MLflow UI on the data folder's tracking store and the Prefect UI on its Prefect
+    database (the runs of every command on that folder). With --start both run on
+    127.0.0.1 until Ctrl-C or SIGTERM, which stops them and every process they started."""
+    import time
 
+    layout = _layout(data)
+    from touch2robot.local_server import answers, spawn_owned, stop_group, stop_on_termination
+    from touch2robot.tracking import local_uri, tracking_uri
+
+    # name: (command, health URL, UI URL); a server the user points at is theirs to run
+    servers: dict[str, tuple[list[str], str, str]] = {}
     uri = tracking_uri(layout)
-    cmd = ["mlflow", "ui", "--backend-store-uri", uri, "--host", "127.0.0.1", "--port", str(port)]
+    if uri == local_uri(layout):
+        # one web worker and no GenAI job runner (by default 4 workers and 8 job processes)
+        command = [sys.executable, "-m", "mlflow", "ui", "--backend-store-uri", uri, "--host", "127.0.0.1", "--port", str(port), "--workers", "1"]
+        servers["MLflow"] = (command, f"http://127.0.0.1:{port}/health", f"http://127.0.0.1:{port}")
+    else:
+        console.print(f"MLflow UI:  {uri} (MLFLOW_TRACKING_URI)")
+    if os.environ.get("PREFECT_API_URL"):
+        console.print(f"Prefect UI: the server of PREFECT_API_URL={os.environ['PREFECT_API_URL']}")
+    else:
+        command = [sys.executable, "-m", "prefect", "server", "start", "--host", "127.0.0.1", "--port", str(prefect_port)]
+        servers["Prefect"] = (command, f"http://127.0.0.1:{prefect_port}/api/health", f"http://127.0.0.1:{prefect_port}")
+    env = {**os.environ, "MLFLOW_SERVER_ENABLE_JOB_EXECUTION": os.environ.get("MLFLOW_SERVER_ENABLE_JOB_EXECUTION", "false")}
     if not start:
-        console.print("MLflow UI:  uv run " + " ".join(cmd))
-        console.print(f"Prefect UI: PREFECT_HOME={os.environ['PREFECT_HOME']} uv run prefect server start  (then set PREFECT_API_URL=http://127.0.0.1:4200/api for runs)")
+        shell_env = {"MLflow": "MLFLOW_SERVER_ENABLE_JOB_EXECUTION=false", "Prefect": f"PREFECT_HOME={env['PREFECT_HOME']}"}
+        for name, (command, _, _) in servers.items():
+            console.print(f"{name} UI: {shell_env[name]} uv run {command[2]} " + " ".join(command[3:]), soft_wrap=True)
+        console.print("(or `touch2robot ui --start` runs both)")
         return
-    console.print(f"MLflow UI on http://127.0.0.1:{port} (Ctrl-C stops it)")
-    subprocess.run(cmd, check=False)
+    if not servers:
+        return
+    with stop_on_termination():
+        running = {name: spawn_owned(command, env) for name, (command, _, _) in servers.items()}
+        try:
+            announced: set[str] = set()
+            while all(proc.poll() is None for proc in running.values()):
+                for name in running.keys() - announced:
+                    if answers(servers[name][1]):
+                        console.print(f"{name} UI on {servers[name][2]}")
+                        announced.add(name)
+                        if announced == running.keys():
+                            console.print("Ctrl-C stops them")
+                time.sleep(0.5)
+            failed = next(name for name, proc in running.items() if proc.poll() is not None)
+            console.print(f"[red]the {failed} server exited with status {running[failed].returncode}[/red]")
+            raise typer.Exit(1)
+        except KeyboardInterrupt:
+            console.print("stopping")
+        finally:
+            for proc in running.values():
+                stop_group(proc)
 
 
 @app.command()
