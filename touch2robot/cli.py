@@ -1,6 +1,7 @@
 """The ``touch2robot`` command. Every command works on one data folder (``--data``,
-``$TOUCH2ROBOT_DATA`` or ``./data``) and needs no server: Prefect runs an ephemeral API,
-MLflow a SQLite file, DuckDB in-process."""
+``$TOUCH2ROBOT_DATA`` or ``./data``) and needs no server: a flow command runs a Prefect
+API of its own that ends with it (touch2robot/local_server.py), MLflow a SQLite file,
+DuckDB in-process."""
 
 from __future__ import annotations
 
