@@ -4,6 +4,9 @@
     catalog holds each recording's rows once.
 (b) A pipeline run killed with SIGKILL leaves no server process of its own behind, and
     the next run takes the finished tasks from the cache instead of running them again.
+(c) The same for the command a user types: `touch2robot ingest` killed with SIGKILL,
+    its own pid only (as the OOM killer or `kill -9 <pid>` does), leaves nothing running:
+    its Prefect API server dies with it (touch2robot.local_server).
 
 Flows run in subprocesses (own session each, killed as a group at the end): Prefect
 fixes its settings per process, and (b) needs a process to kill."""
@@ -12,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -111,6 +115,15 @@ def live_processes_with(data: Path) -> list[str]:
     return found
 
 
+def kill_survivors(data: Path) -> None:
+    """SIGKILL what a failed test left running in ``data`` (processes this test started)."""
+    for line in live_processes_with(data):
+        try:
+            os.kill(int(line.split(":")[0]), signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+
 def smoke_recordings(data: Path) -> list[Path]:
     """The smoke profile's recordings, written by the library (no flow)."""
     config = SynthConfig(subjects=1, demos_per_subject=1, replay_methods=("touch2robot",), replays_per_task=1)
@@ -207,3 +220,61 @@ def test_sigkill_mid_run_leaves_no_server_and_the_rerun_uses_the_cache(tmp_path:
     cached = second_log.read_text().count("Finished in state Cached(")
     assert cached >= len(done_before), second_log.read_text()[-6000:]
     assert not live_processes_with(data)
+
+
+def test_sigkill_of_the_command_alone_leaves_nothing_running_and_the_rerun_resumes(
+    smoke_data: Path, tmp_path: Path, processes: list[subprocess.Popen]
+) -> None:
+    data = tmp_path / "data"
+    shutil.copytree(smoke_data / "recordings", data / "recordings")
+    files = len(list((data / "recordings").glob("*.mcap")))
+    results = data / "prefect" / "results"
+    command = [sys.executable, "-m", "touch2robot.cli", "ingest", "--data", str(data)]
+
+    def launch(log: Path) -> subprocess.Popen:
+        with open(log, "w") as out:
+            proc = subprocess.Popen(command, cwd=ROOT, env=flow_env(data), stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+        processes.append(proc)
+        return proc
+
+    try:
+        first_log = tmp_path / "first.log"
+        first = launch(first_log)
+        deadline = time.monotonic() + 300
+        while time.monotonic() < deadline and first.poll() is None:
+            if results.is_dir() and len(list(results.iterdir())) >= 3:
+                break
+            time.sleep(0.1)
+        time.sleep(1.5)  # the results counted above are complete files by now
+        assert first.poll() is None, f"the run ended before it could be killed:\n{first_log.read_text()[-4000:]}"
+        assert len(live_processes_with(data)) >= 2, "the command runs with its own API server"
+        killed_at = time.time_ns()
+        os.kill(first.pid, signal.SIGKILL)  # the command only, not its process group
+        first.wait()
+        done_before = {p.name: p.stat().st_mtime_ns for p in results.iterdir() if p.stat().st_mtime_ns < killed_at - 10**9}
+        assert len(done_before) >= 3
+
+        deadline = time.monotonic() + 10
+        while (left := live_processes_with(data)) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not left, f"processes of the killed command survive: {left}"
+
+        second_log = tmp_path / "second.log"
+        second = launch(second_log)
+        second.wait(timeout=600)
+        out = second_log.read_text()
+        assert second.returncode == 0, out[-6000:]
+        assert not live_processes_with(data), "the finished command left processes running"
+    finally:
+        kill_survivors(data)
+
+    rewritten = [name for name, mtime in done_before.items() if (results / name).stat().st_mtime_ns != mtime]
+    assert not rewritten, f"results rewritten by the re-run: {rewritten}"
+    assert out.count("Finished in state Cached(") >= len(done_before), out[-6000:]
+    con = duckdb.connect(str(data / "catalog.duckdb"), read_only=True)
+    try:
+        assert con.execute("SELECT count(*), count(DISTINCT recording_id) FROM recordings").fetchone() == (files, files)
+        total, distinct = con.execute("SELECT count(*), count(DISTINCT (source, sequence_id, t, region)) FROM contacts").fetchone()
+        assert total == distinct > 0, "duplicate contact rows"
+    finally:
+        con.close()

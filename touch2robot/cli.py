@@ -1,6 +1,7 @@
 """The ``touch2robot`` command. Every command works on one data folder (``--data``,
-``$TOUCH2ROBOT_DATA`` or ``./data``) and needs no server: Prefect runs an ephemeral API,
-MLflow a SQLite file, DuckDB in-process."""
+``$TOUCH2ROBOT_DATA`` or ``./data``) and needs no server: a flow command runs a Prefect
+API of its own that ends with it (touch2robot/local_server.py), MLflow a SQLite file,
+DuckDB in-process."""
 
 from __future__ import annotations
 
@@ -27,6 +28,40 @@ def _layout(data: Path | None):
     from touch2robot.settings import DataLayout
 
     return configure(DataLayout.from_env(data))
+
+
+def _run_flow(entrypoint: str, **parameters: object) -> object:
+    """Call the flow ``module:function`` with ``parameters`` against a Prefect API that
+    ends with this command: the user's server when PREFECT_API_URL (environment or Prefect
+    profile) names one, else a server of this process on the data folder's database
+    (touch2robot.local_server: unlike Prefect's temporary server, it cannot outlive a
+    killed run). The server starts first and comes up while Prefect and the flow's
+    modules are imported. Call after ``_layout``: Prefect reads its settings once, when
+    first imported."""
+    import atexit
+    import importlib
+
+    from touch2robot.local_server import PrefectApi, stop_on_termination
+
+    module, function = entrypoint.split(":")
+    with stop_on_termination():
+        api = None if os.environ.get("PREFECT_API_URL") else PrefectApi(dict(os.environ)).start()
+        from prefect.settings import PREFECT_API_URL, get_current_settings, temporary_settings
+
+        settings = get_current_settings()
+        if api is not None and settings.api.url:  # the user's Prefect profile names a server
+            api.stop()
+            api = None
+        flow = getattr(importlib.import_module(module), function)
+        if api is None:
+            return flow(**parameters)
+        # stopped at exit, after Prefect's log and event workers have sent what they hold
+        # (they drain at thread shutdown, before atexit), as Prefect stops its own server
+        atexit.register(api.stop)
+        url = api.wait_ready(settings.server.ephemeral.startup_timeout_seconds)
+        os.environ["PREFECT_API_URL"] = url  # for processes the flow starts (task runners)
+        with temporary_settings({PREFECT_API_URL: url}):
+            return flow(**parameters)
 
 
 def _check_profile(profile: str) -> None:
@@ -72,9 +107,7 @@ def ingest(
     `ingest`, cached per file content): bad files are quarantined with a reason."""
     _check_profile(profile)
     layout = _layout(data)
-    from flows.ingest import ingest as ingest_flow
-
-    result = ingest_flow(profile=profile, data=str(layout.root), folder=str(folder.resolve()) if folder else None)
+    result = _run_flow("flows.ingest:ingest", profile=profile, data=str(layout.root), folder=str(folder.resolve()) if folder else None)
     console.print(result)
 
 
@@ -115,9 +148,7 @@ def evaluate(
     onset error) and the user study; tables contact_metrics, onset_errors, user_study."""
     _check_profile(profile)
     layout = _layout(data)
-    from flows.evaluate import evaluate as evaluate_flow
-
-    console.print(evaluate_flow(profile=profile, data=str(layout.root), ratings=str(ratings.resolve()) if ratings else None))
+    console.print(_run_flow("flows.evaluate:evaluate", profile=profile, data=str(layout.root), ratings=str(ratings.resolve()) if ratings else None))
 
 
 @app.command()
@@ -149,9 +180,7 @@ def run(
     """Run every stage that exists, as one Prefect flow (`pipeline`), on a profile."""
     _check_profile(profile)
     layout = _layout(data)
-    from flows.pipeline import pipeline
-
-    console.print(pipeline(profile=profile, data=str(layout.root), synthesize=synthesize))
+    console.print(_run_flow("flows.pipeline:pipeline", profile=profile, data=str(layout.root), synthesize=synthesize))
     console.print(f"catalog: {layout.catalog}\nMLflow:  touch2robot ui --data {layout.root}")
 
 
@@ -191,20 +220,61 @@ def sql(
 def ui(
     data: DataOpt = None,
     port: Annotated[int, typer.Option(help="port for the MLflow UI")] = 5000,
-    start: Annotated[bool, typer.Option("--start", help="start the MLflow UI (else print the command)")] = False,
+    prefect_port: Annotated[int, typer.Option(help="port for the Prefect UI")] = 4200,
+    start: Annotated[bool, typer.Option("--start", help="start the UIs (else print the commands)")] = False,
 ) -> None:
-    """The MLflow UI on the local tracking file (and how to open the Prefect UI)."""
-    layout = _layout(data)
-    from touch2robot.tracking import tracking_uri
+    """The MLflow UI on the data folder's tracking store and the Prefect UI on its Prefect
+    database (the runs of every command on that folder). With --start both run on
+    127.0.0.1 until Ctrl-C or SIGTERM, which stops them and every process they started."""
+    import time
 
+    layout = _layout(data)
+    from touch2robot.local_server import answers, spawn_owned, stop_group, stop_on_termination
+    from touch2robot.tracking import local_uri, tracking_uri
+
+    # name: (command, health URL, UI URL); a server the user points at is theirs to run
+    servers: dict[str, tuple[list[str], str, str]] = {}
     uri = tracking_uri(layout)
-    cmd = ["mlflow", "ui", "--backend-store-uri", uri, "--host", "127.0.0.1", "--port", str(port)]
+    if uri == local_uri(layout):
+        # one web worker and no GenAI job runner (by default 4 workers and 8 job processes)
+        command = [sys.executable, "-m", "mlflow", "ui", "--backend-store-uri", uri, "--host", "127.0.0.1", "--port", str(port), "--workers", "1"]
+        servers["MLflow"] = (command, f"http://127.0.0.1:{port}/health", f"http://127.0.0.1:{port}")
+    else:
+        console.print(f"MLflow UI:  {uri} (MLFLOW_TRACKING_URI)")
+    if os.environ.get("PREFECT_API_URL"):
+        console.print(f"Prefect UI: the server of PREFECT_API_URL={os.environ['PREFECT_API_URL']}")
+    else:
+        command = [sys.executable, "-m", "prefect", "server", "start", "--host", "127.0.0.1", "--port", str(prefect_port)]
+        servers["Prefect"] = (command, f"http://127.0.0.1:{prefect_port}/api/health", f"http://127.0.0.1:{prefect_port}")
+    env = {**os.environ, "MLFLOW_SERVER_ENABLE_JOB_EXECUTION": os.environ.get("MLFLOW_SERVER_ENABLE_JOB_EXECUTION", "false")}
     if not start:
-        console.print("MLflow UI:  uv run " + " ".join(cmd))
-        console.print(f"Prefect UI: PREFECT_HOME={os.environ['PREFECT_HOME']} uv run prefect server start  (then set PREFECT_API_URL=http://127.0.0.1:4200/api for runs)")
+        shell_env = {"MLflow": "MLFLOW_SERVER_ENABLE_JOB_EXECUTION=false", "Prefect": f"PREFECT_HOME={env['PREFECT_HOME']}"}
+        for name, (command, _, _) in servers.items():
+            console.print(f"{name} UI: {shell_env[name]} uv run {command[2]} " + " ".join(command[3:]), soft_wrap=True)
+        console.print("(or `touch2robot ui --start` runs both)")
         return
-    console.print(f"MLflow UI on http://127.0.0.1:{port} (Ctrl-C stops it)")
-    subprocess.run(cmd, check=False)
+    if not servers:
+        return
+    with stop_on_termination():
+        running = {name: spawn_owned(command, env) for name, (command, _, _) in servers.items()}
+        try:
+            announced: set[str] = set()
+            while all(proc.poll() is None for proc in running.values()):
+                for name in running.keys() - announced:
+                    if answers(servers[name][1]):
+                        console.print(f"{name} UI on {servers[name][2]}")
+                        announced.add(name)
+                        if announced == running.keys():
+                            console.print("Ctrl-C stops them")
+                time.sleep(0.5)
+            failed = next(name for name, proc in running.items() if proc.poll() is not None)
+            console.print(f"[red]the {failed} server exited with status {running[failed].returncode}[/red]")
+            raise typer.Exit(1)
+        except KeyboardInterrupt:
+            console.print("stopping")
+        finally:
+            for proc in running.values():
+                stop_group(proc)
 
 
 @app.command()

@@ -1,0 +1,123 @@
+"""touch2robot.local_server: the servers the command starts cannot outlive it (real
+processes: a parent that spawns a child, killed with SIGKILL) and a stop reaches the
+child's own children. The Prefect API server itself is exercised by
+tests/test_reliability.py (a killed `touch2robot ingest`)."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import pytest
+
+from touch2robot.local_server import answers, free_port, spawn_owned, stop_group
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux only")
+
+# a parent that starts `sleep` the way the command starts its servers, prints the
+# child's pid, then waits to be killed
+PARENT = textwrap.dedent(
+    """
+    import sys, time
+    from touch2robot.local_server import spawn_owned
+    child = spawn_owned(["sleep", "600"])
+    print(child.pid, flush=True)
+    time.sleep(600)
+    """
+)
+
+
+def alive(pid: int) -> bool:
+    """Whether ``pid`` runs (a zombie waiting for its parent to reap it does not)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except FileNotFoundError:
+        return False
+    return state != "Z"
+
+
+def wait_gone(pid: int, timeout_s: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while alive(pid) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return not alive(pid)
+
+
+def test_child_dies_when_its_parent_is_killed() -> None:
+    parent = subprocess.Popen([sys.executable, "-c", PARENT], stdout=subprocess.PIPE, text=True)
+    child_pid = int(parent.stdout.readline())
+    try:
+        assert alive(child_pid)
+        # a separate group: a group kill of the parent would not reach it, only the kernel does
+        assert os.getpgid(child_pid) == child_pid != os.getpgid(parent.pid)
+        parent.kill()
+        parent.wait()
+        assert wait_gone(child_pid), "the child outlived its SIGKILLed parent"
+    finally:
+        parent.kill()
+        parent.wait()
+        if alive(child_pid):
+            os.kill(child_pid, signal.SIGKILL)
+
+
+def test_stop_reaches_grandchildren_that_ignore_sigterm() -> None:
+    # a shell that starts a grandchild ignoring SIGTERM (as MLflow's job workers outlive theirs)
+    proc = spawn_owned(["sh", "-c", "trap '' TERM; sleep 600 & echo $!; wait"], stdout=subprocess.PIPE, text=True)
+    grandchild = int(proc.stdout.readline())
+    assert alive(grandchild)
+    started = time.monotonic()
+    stop_group(proc, grace_s=1.0)
+    assert proc.returncode is not None
+    assert wait_gone(grandchild), "the grandchild survived the stop"
+    assert time.monotonic() - started < 10
+
+
+def processes_in(data: Path) -> list[str]:
+    """Live processes whose environment names this data folder."""
+    marker = f"TOUCH2ROBOT_DATA={data}".encode()
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit() and int(entry.name) != os.getpid():
+            try:
+                if marker in (entry / "environ").read_bytes().split(b"\0") and alive(int(entry.name)):
+                    found.append(f"{entry.name}: {(entry / 'cmdline').read_bytes().replace(b'\0', b' ')[:160].decode(errors='replace')}")
+            except OSError:
+                continue
+    return found
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGINT], ids=["SIGTERM", "Ctrl-C"])
+def test_ui_start_serves_both_uis_and_a_stop_leaves_nothing_running(tmp_path: Path, stop: signal.Signals) -> None:
+    data = tmp_path / "data"
+    mlflow_port, prefect_port = free_port(), free_port()
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("PREFECT_", "MLFLOW_"))}
+    env.update(TOUCH2ROBOT_DATA=str(data), PREFECT_SERVER_ANALYTICS_ENABLED="false", PYTHONUNBUFFERED="1")
+    command = [sys.executable, "-m", "touch2robot.cli", "ui", "--start", "--port", str(mlflow_port), "--prefect-port", str(prefect_port)]
+    log = tmp_path / "ui.log"
+    with open(log, "w") as out:
+        proc = subprocess.Popen(command, env=env, stdout=out, stderr=subprocess.STDOUT)
+    try:
+        deadline = time.monotonic() + 240
+        while "Ctrl-C stops them" not in log.read_text() and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.5)
+        assert "Ctrl-C stops them" in log.read_text(), log.read_text()[-4000:]
+        assert answers(f"http://127.0.0.1:{mlflow_port}/health") and answers(f"http://127.0.0.1:{prefect_port}/api/health")
+        assert len(processes_in(data)) >= 3  # the command and at least one process per server
+        proc.send_signal(stop)  # a terminal's Ctrl-C reaches the command only: the servers have their own groups
+        proc.wait(timeout=60)
+        deadline = time.monotonic() + 15
+        while (left := processes_in(data)) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not left, f"left running after the stop: {left}"
+        assert not answers(f"http://127.0.0.1:{mlflow_port}/health")
+    finally:
+        proc.kill()
+        proc.wait()
+        for line in processes_in(data):
+            os.kill(int(line.split(":")[0]), signal.SIGKILL)

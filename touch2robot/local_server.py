@@ -1,0 +1,163 @@
+"""Servers that the ``touch2robot`` command starts for itself (a Prefect API for its flow
+runs, the Prefect and MLflow UIs) as child processes that cannot outlive it.
+
+Without PREFECT_API_URL, Prefect starts a temporary API server as a plain subprocess
+and stops it at interpreter exit; a run killed with SIGKILL (an out-of-memory kill, a
+scheduler's kill -9) leaves that server running. The command starts the same server
+itself instead, so that:
+
+- the server dies with the command, whatever kills it: on Linux the kernel sends it
+  SIGKILL when its parent ends (prctl PR_SET_PDEATHSIG);
+- it has its own process group, so a normal stop (SIGTERM to the group, then SIGKILL)
+  reaches everything it started, and a terminal's Ctrl-C reaches only the command,
+  which then stops it;
+- it starts while the command is still importing the flows (about half the start-up of
+  a run is that import), and it listens on a free port of 127.0.0.1 only.
+
+The API is Prefect's own app (``prefect.server.api.server:create_app`` under uvicorn,
+what Prefect's temporary server runs) on the data folder's Prefect database. This module
+only spawns processes and speaks HTTP: it does not import Prefect."""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+_PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
+_UVICORN_STARTUP_FAILURE = 3  # uvicorn's exit status when it cannot bind its port
+
+
+class ServerFailed(RuntimeError):
+    """A server the command started exited or did not answer in time."""
+
+
+def _die_with(parent_pid: int) -> Callable[[], None] | None:
+    """A ``preexec_fn`` that makes the child receive SIGKILL when its parent dies (Linux;
+    elsewhere there is no such call and only a normal stop ends the child)."""
+    if not sys.platform.startswith("linux"):
+        return None
+    libc = ctypes.CDLL(None, use_errno=True)  # resolved here: the child only makes the call
+
+    def preexec() -> None:
+        libc.prctl(_PR_SET_PDEATHSIG, signal.SIGKILL)
+        if os.getppid() != parent_pid:  # the parent died before the call: nobody will signal
+            os._exit(1)
+
+    return preexec
+
+
+def spawn_owned(cmd: Sequence[str], env: Mapping[str, str] | None = None, **popen: object) -> subprocess.Popen:
+    """Start ``cmd`` in its own process group, killed by the kernel if this process dies."""
+    return subprocess.Popen(list(cmd), env=dict(env) if env is not None else None, start_new_session=True,
+                            preexec_fn=_die_with(os.getpid()), **popen)  # fmt: skip
+
+
+def stop_group(proc: subprocess.Popen, grace_s: float = 5.0) -> None:
+    """SIGTERM the child's process group, SIGKILL it after ``grace_s``, then once more
+    for grandchildren that outlived their parent (MLflow's job workers do); reaps the child."""
+    for sig, wait_s in ((signal.SIGTERM, grace_s), (signal.SIGKILL, 5.0)):
+        try:
+            os.killpg(proc.pid, sig)
+        except ProcessLookupError:
+            break
+        try:
+            proc.wait(timeout=wait_s)
+            break
+        except subprocess.TimeoutExpired:
+            continue
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    proc.wait()
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    with socket.socket() as s:
+        s.bind((host, 0))
+        return s.getsockname()[1]
+
+
+def answers(url: str, timeout_s: float = 2.0) -> bool:
+    try:
+        with urllib.request.urlopen(url, timeout=timeout_s) as response:
+            return response.status == 200
+    except (urllib.error.URLError, ConnectionError, TimeoutError):
+        return False
+
+
+@dataclass
+class PrefectApi:
+    """A Prefect API server process of this command (see the module docstring)."""
+
+    env: dict[str, str]
+    process: subprocess.Popen | None = None
+    port: int = 0
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}/api"
+
+    def start(self) -> PrefectApi:
+        """Spawn the server; returns at once (``wait_ready`` waits for it)."""
+        self.port = free_port()
+        cmd = [
+            sys.executable, "-m", "uvicorn", "--factory", "prefect.server.api.server:create_app",
+            "--host", "127.0.0.1", "--port", str(self.port), "--log-level", "error", "--lifespan", "on",
+        ]  # fmt: skip
+        # Prefect's own settings for its temporary server: no UI, only the services a
+        # short-lived server needs, one app per process
+        env = {**self.env, "PREFECT_UI_ENABLED": "0", "PREFECT__SERVER_EPHEMERAL": "1", "PREFECT__SERVER_FINAL": "1"}
+        self.process = spawn_owned(cmd, env)
+        return self
+
+    def wait_ready(self, timeout_s: float) -> str:
+        """Wait until the API answers its health check; returns its URL. A port taken
+        between choosing and binding it is retried on another one."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            assert self.process is not None, "start() first"
+            status = self.process.poll()
+            if status == _UVICORN_STARTUP_FAILURE:
+                self.start()
+            elif status is not None:
+                raise ServerFailed(f"the Prefect API server exited with status {status} (its output is above)")
+            elif answers(f"{self.url}/health"):
+                return self.url
+            time.sleep(0.2)
+        self.stop()
+        raise ServerFailed(
+            f"the Prefect API server did not answer within {timeout_s:.0f} s; raise "
+            "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS on a slow machine"
+        )
+
+    def stop(self) -> None:
+        if self.process is not None:
+            stop_group(self.process)
+            self.process = None
+
+
+@contextmanager
+def stop_on_termination() -> Iterator[None]:
+    """Within the block, SIGTERM and SIGHUP raise SystemExit (Python's default is to die
+    at once, skipping ``finally``), so the servers the block started are stopped."""
+
+    def on_signal(signum: int, _frame: object) -> None:
+        raise SystemExit(128 + signum)
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGTERM, signal.SIGHUP)}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
