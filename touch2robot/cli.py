@@ -116,9 +116,7 @@ def retarget(profile: ProfileOpt = "smoke", data: DataOpt = None) -> None:
     """Kinematic retargeting of every ingested glove recording to LEAP joints (flow `retarget`)."""
     _check_profile(profile)
     layout = _layout(data)
-    from flows.retarget import retarget as retarget_flow
-
-    console.print(retarget_flow(profile=profile, data=str(layout.root)))
+    console.print(_run_flow("flows.retarget:retarget", profile=profile, data=str(layout.root)))
 
 
 @app.command()
@@ -132,9 +130,7 @@ def teachers(
     (flow `teachers`); a killed training resumes from its last checkpoint."""
     _check_profile(profile)
     layout = _layout(data)
-    from flows.teachers import teachers as teachers_flow
-
-    for row in teachers_flow(profile=profile, data=str(layout.root), tasks=task or None, methods=method or None):
+    for row in _run_flow("flows.teachers:teachers", profile=profile, data=str(layout.root), tasks=task or None, methods=method or None):
         console.print(row)
 
 
@@ -162,9 +158,7 @@ def policy(
     its closed-loop success, per task x method with rollouts in the lake (table policy_eval)."""
     _check_profile(profile)
     layout = _layout(data)
-    from flows.policy import policy as policy_flow
-
-    rows = policy_flow(profile=profile, data=str(layout.root), tasks=task or None, methods=method or None)
+    rows = _run_flow("flows.policy:policy", profile=profile, data=str(layout.root), tasks=task or None, methods=method or None)
     table = Table("task", "method", "origin", "success", "95% CI", "progress")
     for r in rows:
         table.add_row(r["task"], r["method"], r["origin"], f"{r['successes']}/{r['episodes']}", f"[{r['ci_low']:.2f}, {r['ci_high']:.2f}]", f"{r['mean_progress']:.2f}")
