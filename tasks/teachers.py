@@ -181,7 +181,7 @@ def kinematic_rollouts(task_name: str, config: TeacherConfig, recordings: list[d
 @task
 def report_teachers(profile: str, results: list[dict]) -> list[dict]:
     """A Prefect table of success rate and contact F1 per task x method, and a summary."""
-    keys = ("task", "method", "origin", "iterations", "rollouts", "success_rate", "final_progress", "contact_precision", "contact_recall", "contact_f1")
+    keys = ("task", "method", "origin", "iterations", "rollouts", "success_rate", "final_progress", "contact_precision", "contact_recall", "contact_f1", "mlflow_run")
     table = [{k: (round(r[k], 3) if isinstance(r[k], float) else r[k]) for k in keys} for r in results]
     create_table_artifact(key="teacher-rollouts", table=table, description=f"Teacher rollouts ({profile})")
     lines = [f"| {r['task']} | {r['method']} | {r['success_rate']:.2f} | {r['contact_f1']:.3f} |" for r in table]
