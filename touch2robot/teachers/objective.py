@@ -138,6 +138,12 @@ class DemoTracking:
         self._kp: np.ndarray | None = None
         self._last_terms: dict[str, np.ndarray] = {}
 
+    @property
+    def uses_preference(self) -> bool:
+        """Whether the contact reference observed is the human's tactile preference (touch2robot)
+        rather than the geometric contacts (contrack, dexmachina)."""
+        return self.w.tactile > 0 or self.w.contact == 0
+
     # ------------------------------------------------------------------ reference lookups
     def frame(self, env: BatchEnv, offset: int = 0) -> np.ndarray:
         """(N,) reference frame index ``offset`` steps after each copy's current step (clamped)."""
@@ -204,7 +210,7 @@ class DemoTracking:
     def observe(self, env: BatchEnv) -> dict[str, np.ndarray]:
         q = env.hand_qpos
         obj_pos, obj_quat = env.object_pos, env.object_quat
-        if self.w.tactile > 0 or not (self.w.contact > 0):
+        if self.uses_preference:
             flags, offsets = self._ref("preference", env, 1).astype(np.float64), np.zeros((env.n, 24))
         else:
             flags, points = self.contact_targets(env, 1)
@@ -289,11 +295,10 @@ class DemoTracking:
     def episode_end(self, env: BatchEnv, ids: np.ndarray) -> dict[str, float]:
         """Bookkeeping of finished episodes (before their reset): ConTrack's dual ascent and
         DexMachina's assistance schedule. Returns figures to log."""
-        steps = np.maximum(env.time_step[ids], 1)
-        mean_task = self.task_return[ids] / steps
-        # an episode cut short by lost tracking scores its missing steps as zero task reward
+        # task reward per step of the whole demonstration: an episode cut short by lost tracking
+        # scores its missing steps as zero
         full = self.refs.length[self.demo[ids]] - 1
-        mean_task = mean_task * steps / np.maximum(full, 1)
+        mean_task = self.task_return[ids] / np.maximum(full, 1)
         log = {"task/tracking_return": float(mean_task.mean())}
         c = self.method.contrack
         if c.enabled:
