@@ -219,10 +219,12 @@ def _counts(data: Path) -> dict[str, int]:
 def evaluated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     """A smoke pipeline output (synth + ingest), then one `evaluate` flow run on it."""
     from flows.evaluate import evaluate
-    from flows.pipeline import pipeline
+    from flows.ingest import ingest
+    from flows.synth import synth
 
     data = tmp_path_factory.mktemp("evaluate") / "data"
-    pipeline(profile="smoke", data=str(data))
+    synth(profile="smoke", data=str(data))
+    ingest(profile="smoke", data=str(data))
     return data, evaluate(profile="smoke", data=str(data))
 
 

@@ -44,6 +44,13 @@ def test_teachers_flow_writes_rollouts_contacts_and_mlflow_runs(demo_lake: Path,
     assert run.data.params["ppo.gamma"] == "0.96" and run.data.params["method.rewards.tactile"] == "1.0"
     assert any(a.path.endswith(".pt") for a in MlflowClient(uri).list_artifacts(run.info.run_id, "checkpoints"))
 
+    from flows.evaluate import evaluate
+
+    evaluate(profile="smoke", data=str(root))  # the sim contacts are scored like any other source
+    f1 = catalog.query(layout, "SELECT method, f1 FROM contact_metrics WHERE source = 'sim' AND task = 'wipe' AND region = '*' ORDER BY method").to_pylist()
+    assert [r["method"] for r in f1] == ["dex-retargeting", "touch2robot"] and all(0 <= r["f1"] <= 1 for r in f1)
+    assert abs(f1[1]["f1"] - teacher["contact_f1"]) <= 5e-4  # the flow's figure (3 decimals) is the evaluation's
+
     checkpoints = sorted(layout.checkpoints.rglob("model_*.pt"))
     before = {p: p.stat().st_mtime_ns for p in checkpoints}
     again = teachers(profile="smoke", data=str(root), tasks=["wipe"], methods=["touch2robot"])
