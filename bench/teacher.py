@@ -1,7 +1,8 @@
 """Where a teacher's PPO iteration goes: MuJoCo stepping, the objective's observation / reward /
 reset work, policy inference, and the PPO update, for one task and method on demonstrator data;
-the collection rate (env steps/s) next to the raw-rollout ceiling of bench/sim measured in the
-same run (same model, N and substeps, commands precomputed, no Python in between).
+the collection rate (env steps/s) next to the raw-rollout ceiling measured in the same run the
+way bench/sim measures it: MuJoCo's multithreaded rollout, one call per control step, replaying
+the very states and commands the collection produced, with no Python work in between.
 
     uv run python bench/teacher.py [--task pick] [--method touch2robot] [--n 200] [--steps 64]
                                    [--iterations 3] [--hidden 1024 1024 512]
@@ -13,7 +14,6 @@ into a temporary data folder first (library calls, not timed).
 from __future__ import annotations
 
 import argparse
-import sys
 import tempfile
 import time
 from collections import defaultdict
@@ -25,9 +25,6 @@ import torch
 from mujoco import rollout
 from rsl_rl.runners import OnPolicyRunner
 
-sys.path.insert(0, str(Path(__file__).parent))
-from sim import run_ceiling_per_step  # noqa: E402  (bench/sim.py)
-
 from touch2robot import lake as lake_io  # noqa: E402
 from touch2robot.contacts import ContactsConfig  # noqa: E402
 from touch2robot.contacts.extract import human_contacts  # noqa: E402
@@ -37,6 +34,7 @@ from touch2robot.retarget.lake import load_hand_motion, write_result  # noqa: E4
 from touch2robot.retarget.retargeter import Retargeter, retarget_motion  # noqa: E402
 from touch2robot.settings import DataLayout  # noqa: E402
 from touch2robot.sim.config import SimConfig  # noqa: E402
+from touch2robot.sim.env import CONTROL_SPEC, BatchEnv  # noqa: E402
 from touch2robot.synth.config import SynthConfig  # noqa: E402
 from touch2robot.synth.generate import RecordingJob, write_recording  # noqa: E402
 from touch2robot.teachers.config import PPOConfig, TeacherConfig  # noqa: E402
@@ -71,6 +69,38 @@ class Timed:
             self.totals[self.key] += time.perf_counter() - start
 
 
+class Recorded:
+    """Wraps BatchEnv.step: times it and keeps each step's start state and control inputs."""
+
+    def __init__(self, env: BatchEnv, totals: dict[str, float], key: str) -> None:
+        self.env, self.step, self.totals, self.key = env, env.step, totals, key
+        self.inputs: list[tuple[np.ndarray, np.ndarray]] = []
+
+    def __call__(self, *args, **kwargs):
+        state = self.env.state.copy()
+        start = time.perf_counter()
+        self.step(*args, **kwargs)
+        self.totals[self.key] += time.perf_counter() - start
+        self.inputs.append((state, self.env._control.copy()))
+
+
+def ceiling(env: BatchEnv, inputs: list[tuple[np.ndarray, np.ndarray]], threads: int) -> float:
+    """Env steps/s of the raw rollout over the recorded states and commands, one call per step."""
+    datas = [mujoco.MjData(env.model) for _ in range(threads)]
+    pool = rollout.Rollout(nthread=threads if threads > 1 else 0)
+    models = [env.model] * env.n
+    warm = np.zeros((env.n, env.model.nv))
+    out = np.empty((env.n, env.cfg.substeps, env.nstate))
+    sens = np.empty((env.n, env.cfg.substeps, env.model.nsensordata))
+    start = time.perf_counter()
+    for state, control in inputs:
+        pool.rollout(models, datas, state, control, control_spec=CONTROL_SPEC, skip_checks=True, nstep=env.cfg.substeps,
+                     initial_warmstart=warm, state=out, sensordata=sens)  # fmt: skip
+    rate = env.n * len(inputs) / (time.perf_counter() - start)
+    pool.close()
+    return rate
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--task", default="pick")
@@ -93,7 +123,8 @@ def main() -> None:
     vec_env = make_teacher_env(args.task, refs, config, args.method)
     totals: dict[str, float] = defaultdict(float)
     env, objective = vec_env.env, vec_env.objective
-    env.step = Timed(env.step, totals, "physics (BatchEnv.step)")
+    recorder = Recorded(env, totals, "physics (BatchEnv.step)")
+    env.step = recorder
     for name in ("observe", "reward", "terminated", "truncated", "reset", "command", "episode_end"):
         setattr(objective, name, Timed(getattr(objective, name), totals, "objective (obs, reward, resets)"))
     runner = OnPolicyRunner(vec_env, runner_config(config.ppo), log_dir=None, device="cpu")
@@ -102,18 +133,14 @@ def main() -> None:
     runner.alg.compute_returns = Timed(runner.alg.compute_returns, totals, "returns (GAE)")
     runner.learn(1)  # warm-up: thread pools, allocations
     totals.clear()
+    recorder.inputs.clear()
     start = time.perf_counter()
     runner.learn(args.iterations)
     total = time.perf_counter() - start
     env_steps = args.n * args.steps * args.iterations
 
-    # the ceiling: bench/sim's raw rollout of the same scene, N and substeps
-    ceiling_env = vec_env.env
-    datas = [mujoco.MjData(ceiling_env.model) for _ in range(args.threads)]
-    pool = rollout.Rollout(nthread=args.threads if args.threads > 1 else 0)
-    ceiling = max(run_ceiling_per_step(ceiling_env, args.steps, pool, datas) for _ in range(2))
-    pool.close()
-    ceiling_env.close()
+    best_ceiling = max(ceiling(env, recorder.inputs, args.threads) for _ in range(2))
+    env.close()
 
     print(f"teacher {args.task}/{args.method}: N={args.n}, {args.steps} steps/env/iteration, hidden {args.hidden}, {args.iterations} iterations")
     print(f"PPO iteration: {1e3 * total / args.iterations:.0f} ms")
@@ -125,8 +152,8 @@ def main() -> None:
     collect = total - totals["PPO update"] - totals["returns (GAE)"]
     rate = env_steps / collect
     print(f"collection: {rate:.0f} env steps/s; physics alone {env_steps / totals['physics (BatchEnv.step)']:.0f} env steps/s")
-    print(f"ceiling (bench/sim raw rollout, same N): {ceiling:.0f} env steps/s")
-    print(f"ratio collection / ceiling: {rate / ceiling:.2f}")
+    print(f"ceiling (raw rollout of the same states and commands): {best_ceiling:.0f} env steps/s")
+    print(f"ratio physics / ceiling: {env_steps / totals['physics (BatchEnv.step)'] / best_ceiling:.2f}; collection / ceiling: {rate / best_ceiling:.2f}")
 
 
 if __name__ == "__main__":
