@@ -8,6 +8,7 @@ end, pass or fail (the MLflow server's job workers outlive a SIGTERM of their pa
 
 from __future__ import annotations
 
+import ast
 import json
 import os
 import socket
@@ -122,7 +123,12 @@ def test_prefect_yaml_lists_every_flow() -> None:
     pools = config["definitions"]["work_pools"]
     assert {p["name"] for p in pools.values()} == {"touch2robot-local", "touch2robot-docker"}
     for d in config["deployments"]:
-        assert set(d["parameters"]) == {"profile", "data"}
+        path, func = d["entrypoint"].split(":")
+        tree = ast.parse((ROOT / path).read_text())
+        signature = next(n for n in tree.body if isinstance(n, ast.FunctionDef) and n.name == func).args
+        accepted = {a.arg for a in signature.args + signature.kwonlyargs}
+        # every deployment takes a profile and a data folder, and only parameters its flow has
+        assert {"profile", "data"} <= set(d["parameters"]) <= accepted, d["entrypoint"]
 
 
 @pytest.mark.slow
