@@ -146,7 +146,8 @@ def train_student(variant: str, config: StudentConfig, teacher: TeacherConfig, d
         example = torch.cat([window.batch(torch.arange(1))["inputs"].reshape(1, -1), clouds[window.cloud[window.starts[:1] + cfg.history - 1]].reshape(1, -1)], dim=1)
         with torch.inference_mode():
             signature = infer_signature(example.numpy(), serving(example).numpy())
-        mlflow.pytorch.log_model(serving, name="model", signature=signature, input_example=example.numpy())
+        # pickled module: torch.export (MLflow's default) is not thread-safe and variants train side by side
+        mlflow.pytorch.log_model(serving, name="model", signature=signature, input_example=example.numpy(), serialization_format="pickle")
         mlflow.log_metrics({"val/initial_loss": result.initial_val["loss"], "val/final_loss": result.final_val["loss"]})
     if result.resumed_from:
         get_run_logger().info("student %s resumed at update %d of %d", variant, result.resumed_from, result.steps)
