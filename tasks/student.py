@@ -55,8 +55,8 @@ def augment_dataset(config: StudentConfig, teacher: TeacherConfig, split: dict, 
     layout = DataLayout.from_env(data)
     trainable = [r for r in recordings if any(r["recording_id"] in ids for role in ("train", "val") for ids in split[role].values())]
     refs = _references(layout, trainable, teacher)
-    tasks = sorted({t for t, ids in split["train"].items() if ids})
-    counts = per_task_counts(config.augmented_rollouts, tasks)
+    tasks = sorted({t for role in ("train", "val") for t, ids in split[role].items() if ids})
+    counts = per_task_counts(config.augmented_rollouts, [t for t in tasks if split["train"].get(t)])
     manifest: dict = {"profile": profile, "total_rollouts": config.augmented_rollouts, "joint_noise_std": config.joint_noise_std,
                       "seed": config.seed, "teacher_method": config.teacher_method, "in_sample": split["in_sample"], "tasks": {}}  # fmt: skip
     paths = {}
@@ -65,15 +65,16 @@ def augment_dataset(config: StudentConfig, teacher: TeacherConfig, split: dict, 
         if not source.is_file():
             raise FileNotFoundError(f"student: no teacher rollouts of {config.teacher_method}/{task_name} at {source}: run the teachers flow first")
         seqs = paired_sequences(pq.read_table(source), refs, teacher.sim.contact_threshold_n)
-        train = [s for s in seqs if s.reference_id in split["train"][task_name]]
+        train = [s for s in seqs if s.reference_id in split["train"].get(task_name, [])]
         val = [s for s in seqs if s.reference_id in split["val"].get(task_name, [])]
-        table = augment(train, counts[task_name], config.joint_noise_std, config.seed, val)
+        count = counts.get(task_name, 0)
+        table = augment(train, count, config.joint_noise_std, config.seed, val)
         path = lake_io.write_rows(layout.lake, "student_dataset", task_name, table)
         paths[task_name] = str(path)
         manifest["tasks"][task_name] = {
-            "train_demos": split["train"][task_name], "val_demos": split["val"].get(task_name, []), "held_out_demos": split["held_out"].get(task_name, []),
-            "teacher_rollouts_train": len(train), "teacher_rollouts_val": len(val), "augmented_rollouts": counts[task_name],
-            "noisy_copies": max(counts[task_name] - len(train), 0), "rows": table.num_rows, "file": path.name, "sha256": file_digest(path),
+            "train_demos": split["train"].get(task_name, []), "val_demos": split["val"].get(task_name, []), "held_out_demos": split["held_out"].get(task_name, []),
+            "teacher_rollouts_train": len(train), "teacher_rollouts_val": len(val), "augmented_rollouts": count,
+            "noisy_copies": max(count - len(train), 0), "rows": table.num_rows, "file": path.name, "sha256": file_digest(path),
         }  # fmt: skip
     with tracking.stage_run(layout, "student", "dataset", {"profile": profile, **_split_tags(split)}) as run:
         mlflow.log_params({"augmented_rollouts": config.augmented_rollouts, "joint_noise_std": config.joint_noise_std, "seed": config.seed})

@@ -212,3 +212,47 @@ def test_executing_the_teachers_own_commands_reproduces_its_rollout(student_lake
     np.testing.assert_allclose(ro.column(student_rows, "joint_position"), ro.column(teacher, "joint_position"), atol=1e-6)
     assert set(contacts["source"].to_pylist()) == {"reconstructed"}
     assert student_rows["rollout_id"][0].as_py() == "student-touch2robot-pick-000"
+
+
+# ---------------------------------------------------------------- the flow
+@pytest.mark.slow
+def test_student_flow_end_to_end(student_lake: Path, tmp_path: Path) -> None:
+    """Smoke profile: dataset, four variants that learn, in-sample reconstructions (one demo per
+    task) in the lake, scored by the evaluation as source reconstructed; a re-run hits the cache."""
+    import mlflow
+
+    from flows.student import student
+    from touch2robot import tracking
+    from touch2robot.evaluate import contact_metrics_table, evaluated_sources, read_contacts
+
+    root = tmp_path / "data"
+    shutil.copytree(student_lake, root)
+    layout = DataLayout(root)
+    out = student(profile="smoke", data=str(root))
+    trained = {t["variant"]: t for t in out["trained"]}
+    assert set(trained) == {"full", "no_tactile", "no_geometry", "no_dropout"}
+    # validation: drawer's one demonstration, a task the smoke student never trains on
+    assert trained["full"]["final_val_loss"] < trained["full"]["initial_val_loss"], [(t["initial_val_loss"], t["final_val_loss"]) for t in trained.values()]
+    assert out["split"]["in_sample"] and {r["task"] for r in out["heldout"]} == set(TASKS)
+
+    data = pa.concat_tables([pq.read_table(p) for p in lake_io.files(layout.lake, "student_dataset")])
+    train_rows = data.filter(pc.equal(data["split"], "train"))
+    assert len(train_rows["sample_id"].unique()) == 16  # balanced over the 3 trained tasks; drawer validates
+    for task in TASKS:
+        assert lake_io.file_path(layout.lake, "rollouts", f"student-{task}", {"method": "touch2robot"}).is_file()
+        assert lake_io.file_path(layout.lake, "student_predictions", f"touch2robot-{task}").is_file()
+    assert "reconstructed" in evaluated_sources(layout.lake)
+    metrics = contact_metrics_table(read_contacts(layout.lake, ["human", "reconstructed"]), "reconstructed")
+    assert set(metrics["method"]) == {"touch2robot"} and metrics["n"].sum() > 0
+
+    tracking.experiment(layout, "student")
+    runs = mlflow.search_runs(experiment_names=["touch2robot/student"], output_format="list")
+    assert len(runs) == 5 and all(r.data.tags["held_out"].startswith("in-sample") for r in runs)
+    full = trained["full"]["mlflow_run"]
+    assert any(k.startswith("heldout/pick/") for k in mlflow.get_run(full).data.metrics)
+    model = mlflow.pyfunc.load_model(f"runs:/{full}/model")
+    example = np.zeros((2, model.metadata.get_input_schema().inputs[0].shape[1]), dtype=np.float32)
+    assert model.predict(example).shape == (2, 30)
+
+    again = student(profile="smoke", data=str(root))
+    assert again["trained"] == out["trained"]

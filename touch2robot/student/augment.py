@@ -168,11 +168,12 @@ def _rows(seq: PairedSequence, sample_id: str, split: str, augment: int, noise: 
 
 def augment(train: list[PairedSequence], count: int, noise_std: float, seed: int, val: list[PairedSequence] = ()) -> pa.Table:
     """``student_dataset`` rows of one task: ``count`` training rollouts (the teacher rollouts
-    unchanged, then seeded noisy copies) and the validation rollouts unchanged."""
-    if not train:
+    unchanged, then seeded noisy copies) and the validation rollouts unchanged (a task can
+    have validation rollouts only: ``count`` 0)."""
+    if count and not train:
         raise StudentDataError("no training teacher rollouts to augment")
     tasks = {s.task for s in [*train, *val]}
-    if len(tasks) != 1:
+    if len(tasks) != 1:  # none: nothing to write
         raise StudentDataError(f"augment one task at a time, got {sorted(tasks)}")
     task = tasks.pop()
     t_index = TASKS.index(task) if task in TASKS else len(TASKS)
