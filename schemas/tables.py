@@ -283,6 +283,52 @@ policy_eval = pa.schema(
     ]
 )
 
+# --- Student retargeter (flow `student`) ------------------------------------------------
+# Training data of the distilled student: paired human-robot steps from teacher rollouts, one
+# row per (rollout, step j). Step j pairs the human demonstration at reference frame j with the
+# teacher's command aimed at that frame and the sim contacts it led to. Training rollouts are
+# the teacher's rollouts once unchanged, then copies with N(0, std^2) added per frame and joint
+# to kinematic_joints and target_joints alike (touch2robot.student.augment).
+# Files: lake/student_dataset/<task>.parquet
+student_dataset = pa.schema(
+    [
+        pa.field("sample_id", pa.string(), nullable=False),  # "<split>-<task>-<index:03d>": one student sequence
+        pa.field("split", pa.string(), nullable=False),  # train | val (validation demonstrations, never trained on)
+        pa.field("task", pa.string(), nullable=False),
+        pa.field("reference_id", pa.string(), nullable=False),  # the glove recording
+        pa.field("source_rollout_id", pa.string(), nullable=False),  # the teacher rollout it comes from
+        pa.field("augment", pa.int32(), nullable=False),  # 0 = the teacher rollout unchanged, k > 0 = its k-th noisy copy
+        pa.field("step", pa.int32(), nullable=False),  # j: the reference frame the command aims at
+        pa.field("t_ref", pa.float64(), nullable=False),  # s on the glove recording's clock
+        pa.field("kinematic_joints", pa.list_(pa.float32(), 16), nullable=False),  # input: raw kinematic retargeting (+ noise)
+        pa.field("wrist_pose", pa.list_(pa.float64(), 7), nullable=False),  # input: kinematic robot wrist px py pz qw qx qy qz
+        pa.field("object_pose", pa.list_(pa.float64(), 7), nullable=False),  # input: demonstrated object pose
+        pa.field("preference", pa.list_(pa.bool_(), 8), nullable=False),  # input: human tactile preference, ROBOT_REGIONS
+        pa.field("target_joints", pa.list_(pa.float64(), 16), nullable=False),  # target: teacher joint command (+ the same noise)
+        pa.field("target_wrist", pa.list_(pa.float64(), 7), nullable=False),  # target: teacher wrist command
+        pa.field("contact", pa.list_(pa.bool_(), 8), nullable=False),  # target: sim contact (region force > threshold) after it
+    ]
+)
+
+# The student's predicted contacts beside the reconstructed (executed) ones in `contacts`
+# (source reconstructed): one row per (student rollout, step, region); sequence_id, t and t_ref
+# join them. Predictions cover the whole demonstration, also past an early end of the rollout.
+# Files: lake/student_predictions/<method>-<task>.parquet
+student_predictions = pa.schema(
+    [
+        pa.field("sequence_id", pa.string(), nullable=False),  # the student rollout ("student-<method>-<task>-<index:03d>")
+        pa.field("method", pa.string(), nullable=False),
+        pa.field("task", pa.string(), nullable=False),
+        pa.field("reference_id", pa.string(), nullable=False),  # the held-out glove recording
+        pa.field("variant", pa.string(), nullable=False),  # student variant ("full" or an ablation)
+        pa.field("t", pa.float64(), nullable=False),  # s since the rollout's reset (step j: j / 20 Hz)
+        pa.field("t_ref", pa.float64(), nullable=False),
+        pa.field("region", pa.string(), nullable=False),  # one of ROBOT_REGIONS
+        pa.field("logit", pa.float32(), nullable=False),  # predicted contact logit
+        pa.field("contact", pa.bool_(), nullable=False),  # logit > 0
+    ]
+)
+
 SCHEMAS: dict[str, pa.Schema] = {
     "recordings": recordings,
     "taxels": taxels,
@@ -303,6 +349,8 @@ SCHEMAS: dict[str, pa.Schema] = {
     "retargeted": retargeted,
     "rollouts": rollouts,
     "policy_eval": policy_eval,
+    "student_dataset": student_dataset,
+    "student_predictions": student_predictions,
 }
 
 # Hive partition columns per table (directory levels under lake/<table>/).

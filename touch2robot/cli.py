@@ -135,6 +135,27 @@ def teachers(
 
 
 @app.command()
+def student(
+    profile: ProfileOpt = "smoke",
+    data: DataOpt = None,
+    variant: Annotated[list[str] | None, typer.Option(help="full or an ablation of student.ablations (repeatable; default all)")] = None,
+) -> None:
+    """Distil the unified student retargeter from the touch2robot teachers' rollouts (augmented
+    dataset, full model and ablations), then reconstruct the held-out demonstrations (flow
+    `student`); a killed training resumes from its last checkpoint."""
+    _check_profile(profile)
+    layout = _layout(data)
+    from flows.student import student as student_flow
+
+    result = student_flow(profile=profile, data=str(layout.root), variants=variant or None)
+    table = Table("variant", "task", "joint error (rad)", "kinematic input (rad)", "contact F1", "predicted F1", "success")
+    for r in result.get("heldout", []):
+        table.add_row(r["variant"], r["task"], f"{r['joint_error_student']:.4f}", f"{r['joint_error_kinematic']:.4f}",
+                      f"{r['contact_f1']:.3f}", f"{r['predicted_contact_f1']:.3f}", f"{r['success_rate']:.2f}")  # fmt: skip
+    console.print(table)
+
+
+@app.command()
 def evaluate(
     profile: ProfileOpt = "smoke",
     data: DataOpt = None,

@@ -14,6 +14,7 @@ from touch2robot.contacts.config import ContactsConfig
 from touch2robot.policy.config import PolicyConfig
 from touch2robot.retarget.config import RetargetConfig
 from touch2robot.runner_config import RunnerConfig
+from touch2robot.student.config import StudentConfig
 from touch2robot.synth.config import SynthConfig
 from touch2robot.teachers.config import TeacherConfig
 
@@ -32,6 +33,7 @@ class Profile(BaseModel):
     retarget: RetargetConfig = RetargetConfig()
     runner: RunnerConfig = RunnerConfig()
     teacher: TeacherConfig = TeacherConfig()
+    student: StudentConfig = StudentConfig()
     policy: PolicyConfig = PolicyConfig()
 
 

@@ -1,0 +1,61 @@
+"""Flow `student`: the unified student retargeter. Augment the teachers' rollouts (lake
+``student_dataset``), distil the full model and each ablation of the profile's ``student``
+section (one MLflow run each, stage "student"), and reconstruct the held-out demonstrations
+(``rollouts`` origin student, ``contacts`` source reconstructed, ``student_predictions``)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+from prefect import flow
+
+from flows.retarget import glove_sessions
+from tasks.common import file_digest, stored
+from tasks.ingest import refresh_catalog
+from tasks.runners import ProfileTaskRunner
+from tasks.student import augment_dataset, reconstruct, report_student, teacher_rollouts_path, train_student
+from tasks.teachers import references_digest
+from touch2robot import lake as lake_io
+from touch2robot.config import load_profile
+from touch2robot.ingest import recording_rows
+from touch2robot.settings import DataLayout
+from touch2robot.student.augment import split_demonstrations
+
+
+@flow(name="student", task_runner=ProfileTaskRunner(), log_prints=True)
+def student(profile: str = "smoke", data: str | None = None, variants: list[str] | None = None) -> dict:
+    """Dataset -> one training per variant (default: full and the profile's ablations) ->
+    reconstructions of the held-out demonstrations of every task with teacher rollouts."""
+    layout = DataLayout.from_env(data)
+    prof = load_profile(profile)
+    config, teacher = prof.student, prof.teacher
+    variants = list(variants or config.variants)
+    for v in variants:
+        config.variant(v)  # an unknown variant fails here, before any training
+    recordings = []
+    for r in glove_sessions(recording_rows(layout.lake).to_pylist()):
+        if lake_io.file_path(layout.lake, "retargeted", r["recording_id"]).is_file() and teacher_rollouts_path(layout.lake, config.teacher_method, r["task"]).is_file():
+            recordings.append({k: r[k] for k in ("recording_id", "task", "subject")})
+    if not recordings:
+        print(f"student: no teacher rollouts of {config.teacher_method} in {layout.lake / 'rollouts'}: run the teachers flow first")
+        return {}
+    demos: dict[str, list[str]] = {}
+    for r in recordings:
+        demos.setdefault(r["task"], []).append(r["recording_id"])
+    split = dataclasses.asdict(split_demonstrations(demos, config.held_out_fraction, config.val_fraction, config.seed))
+    sources = [teacher_rollouts_path(layout.lake, config.teacher_method, t) for t in sorted(demos)]
+    digest = references_digest(layout.lake, recordings) + "".join(file_digest(p) for p in sources)
+    root = str(layout.root)
+    dataset = stored(augment_dataset, layout.results)(config, teacher, split, recordings, digest, root, profile)
+    trained = [stored(train_student, layout.results).submit(v, config, teacher, dataset, root, profile) for v in variants]
+    rebuilt = [stored(reconstruct, layout.results).submit(t, config, teacher, split, recordings, digest, root) for t in trained]
+    trained_rows = [f.result() for f in trained]
+    rows = [r for f in rebuilt for r in f.result()]
+    refresh_catalog(root)
+    report_student(profile, trained_rows, rows)
+    for t in trained_rows:
+        print(f"student {t['variant']:12s} val loss {t['initial_val_loss']:.4f} -> {t['final_val_loss']:.4f} ({t['steps']} updates)")
+    for r in rows:
+        print(f"student {r['variant']:12s} {r['task']:7s} joint error {r['joint_error_student']:.4f} rad (kinematic input {r['joint_error_kinematic']:.4f}), "
+              f"contact F1 {r['contact_f1']:.3f} (predicted {r['predicted_contact_f1']:.3f})")  # fmt: skip
+    return {"split": split, "trained": trained_rows, "heldout": rows}
