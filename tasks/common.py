@@ -10,7 +10,7 @@ from importlib import util
 from pathlib import Path
 from typing import Any
 
-from prefect.cache_policies import INPUTS, TASK_SOURCE, CachePolicy
+from prefect.cache_policies import INPUTS, NO_CACHE, TASK_SOURCE, CachePolicy
 
 
 @lru_cache(maxsize=None)
@@ -37,6 +37,11 @@ class LibraryCode(CachePolicy):
 
     def compute_key(self, task_ctx: Any, inputs: dict[str, Any], flow_parameters: dict[str, Any], **kwargs: Any) -> str:
         return hashlib.sha256("".join(source_digest(m) for m in self.modules).encode()).hexdigest()
+
+
+# Bookkeeping tasks (catalog refresh, reports, artefacts) run on every flow run; persisting
+# their results would only pile up files in the results folder that no later run reads.
+ALWAYS_RUN = {"cache_policy": NO_CACHE, "persist_result": False}
 
 
 def cache_policy(*modules: str) -> CachePolicy:

@@ -12,7 +12,7 @@ from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
 from schemas.tables import SCHEMAS
-from tasks.common import cache_policy
+from tasks.common import ALWAYS_RUN, cache_policy
 from touch2robot import evaluate as ev, tracking
 from touch2robot.metrics import ALL
 from touch2robot.settings import DataLayout
@@ -71,7 +71,7 @@ def evaluate_ratings(path: str, ratings_sha256: str) -> dict:
     return {"path": path, "synthetic": synthetic, "rows": _records(rows, "user_study"), "error": ""}
 
 
-@task
+@task(**ALWAYS_RUN)
 def store_table(lake: str, table: str, records: list[dict], keys: list[str]) -> list[str]:
     """Replace an evaluation table's files with ``records`` (one file per ``keys`` group).
 
@@ -187,7 +187,7 @@ def log_user_study(data: str, profile: str, path: str, ratings_sha256: str, rows
         return run.info.run_id
 
 
-@task
+@task(**ALWAYS_RUN)
 def publish_artefacts(profile: str, contact_metrics: list[dict], onset_summaries: list[dict], studies: list[dict], runs: dict[str, str]) -> None:
     """Prefect artefacts of the flow run: the metrics table, the user-study table, a summary."""
     summary = _summary(_frame(contact_metrics, "contact_metrics"), _frame(onset_summaries, "onset_errors"))

@@ -13,7 +13,7 @@ from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
 from schemas.tables import ROBOT_REGIONS
-from tasks.common import cache_policy
+from tasks.common import ALWAYS_RUN, cache_policy
 from touch2robot import catalog, lake as lake_io, tracking
 from touch2robot.contacts import ContactsConfig
 from touch2robot.contacts.extract import human_contacts, replay_contacts
@@ -31,7 +31,7 @@ def ingest_recording(path: str, content_sha: str, lake: str) -> dict:
     return asdict(result)
 
 
-@task
+@task(**ALWAYS_RUN)
 def remove_superseded(lake: str, current: dict[str, str]) -> list[str]:
     """Drop the rows of earlier versions of files whose content changed."""
     stale = superseded_ids(Path(lake), current)
@@ -62,7 +62,7 @@ def extract_real_contacts(replay: dict, calibration_id: str, reference: dict | N
     return {"recording_id": rid, "rows": rows.num_rows}
 
 
-@task(retries=2, retry_delay_seconds=2)
+@task(**ALWAYS_RUN, retries=2, retry_delay_seconds=2)
 def refresh_catalog(data: str) -> list[str]:
     """Recreate the DuckDB views over the lake (waits for the single-writer lock)."""
     return catalog.refresh(DataLayout.from_env(data))
@@ -89,7 +89,7 @@ def _timeline_png(lake: Path, recording: dict, out: Path) -> Path:
     return path
 
 
-@task
+@task(**ALWAYS_RUN)
 def report_ingest(data: str, profile: str, results: list[dict], contact_summaries: list[dict]) -> str:
     """MLflow run (counts, quarantined files, thresholds, contact timelines) and a Prefect
     artefact summarising the ingest flow run."""

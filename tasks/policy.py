@@ -12,7 +12,7 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_table_artifact
 
-from tasks.common import cache_policy, file_digest
+from tasks.common import ALWAYS_RUN, cache_policy, file_digest
 from touch2robot import lake as lake_io
 from touch2robot import tracking
 from touch2robot.policy import PolicyConfig
@@ -112,7 +112,7 @@ def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: s
     return row
 
 
-@task
+@task(**ALWAYS_RUN)
 def report_policy(profile: str, rows: list[dict]) -> list[dict]:
     """A Prefect table of the success rates per task x method."""
     create_table_artifact(

@@ -11,7 +11,7 @@ import numpy as np
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
-from tasks.common import cache_policy
+from tasks.common import ALWAYS_RUN, cache_policy
 from touch2robot import lake as lake_io
 from touch2robot import tracking
 from touch2robot.retarget import RetargetConfig
@@ -87,7 +87,7 @@ def retarget_recording(recording: dict, config: RetargetConfig, data: str, profi
     return {**base, "error": "", "mlflow_run": run_id, **summary}
 
 
-@task
+@task(**ALWAYS_RUN)
 def report_retarget(profile: str, results: list[dict]) -> dict:
     """A Prefect table and summary of the flow run; returns the aggregate figures."""
     done = [r for r in results if not r["error"]]

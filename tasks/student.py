@@ -13,7 +13,7 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
-from tasks.common import cache_policy, file_digest
+from tasks.common import ALWAYS_RUN, cache_policy, file_digest
 from touch2robot import lake as lake_io
 from touch2robot import tracking
 from touch2robot.settings import DataLayout
@@ -192,7 +192,7 @@ def reconstruct(trained: dict, config: StudentConfig, teacher: TeacherConfig, sp
     return rows
 
 
-@task
+@task(**ALWAYS_RUN)
 def report_student(profile: str, trained: list[dict], rows: list[dict]) -> list[dict]:
     """A Prefect table of the held-out figures per variant x task and a summary of the losses."""
     keys = ("variant", "task", "demos", "joint_error_student", "joint_error_kinematic", "contact_f1", "predicted_contact_f1", "success_rate")

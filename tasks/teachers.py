@@ -10,7 +10,7 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
-from tasks.common import cache_policy, file_digest
+from tasks.common import ALWAYS_RUN, cache_policy, file_digest
 from touch2robot import lake as lake_io
 from touch2robot import tracking
 from touch2robot.settings import DataLayout
@@ -178,7 +178,7 @@ def kinematic_rollouts(task_name: str, config: TeacherConfig, recordings: list[d
     return {"task": task_name, "method": "dex-retargeting", "origin": "kinematic", **figures, "iterations": 0, "mlflow_run": run.info.run_id}
 
 
-@task
+@task(**ALWAYS_RUN)
 def report_teachers(profile: str, results: list[dict]) -> list[dict]:
     """A Prefect table of success rate and contact F1 per task x method, and a summary."""
     keys = ("task", "method", "origin", "iterations", "rollouts", "success_rate", "final_progress", "contact_precision", "contact_recall", "contact_f1", "mlflow_run")
