@@ -83,25 +83,6 @@ def augment_dataset(config: StudentConfig, teacher: TeacherConfig, split: dict, 
     return {"paths": paths, "tasks": tasks, "digest": _sha([manifest["tasks"][t]["sha256"] for t in tasks]), "mlflow_run": run.info.run_id, "split": split}
 
 
-def _mlflow_run(layout: DataLayout, folder: Path, name: str, tags: dict[str, str], params: dict) -> str:
-    """The variant's MLflow run: the one recorded in its training folder (a resumed training
-    continues its curves), else a new one."""
-    import mlflow
-
-    marker = folder / "mlflow_run.json"
-    uri = tracking.tracking_uri(layout)
-    if marker.is_file():
-        saved = json.loads(marker.read_text())
-        if saved.get("tracking_uri") == uri:
-            return saved["run_id"]
-    folder.mkdir(parents=True, exist_ok=True)
-    with tracking.stage_run(layout, "student", name, tags) as run:
-        mlflow.log_params(params)
-    tmp = marker.with_suffix(".tmp")
-    tmp.write_text(json.dumps({"run_id": run.info.run_id, "tracking_uri": uri}))
-    tmp.replace(marker)
-    return run.info.run_id
-
 
 def _clouds(tasks: list[str], teacher: TeacherConfig):
     import numpy as np
@@ -133,7 +114,7 @@ def train_student(variant: str, config: StudentConfig, teacher: TeacherConfig, d
     dump = cfg.model_dump(mode="json", exclude={"ablations"})
     folder = layout.checkpoints / "student" / f"{variant}-{_sha([dump, dataset['digest']])[:12]}"
     tags = {"profile": profile, "variant": variant, "checkpoints": str(folder), "dataset_run": dataset["mlflow_run"], **_split_tags(dataset["split"])}
-    run_id = _mlflow_run(layout, folder, f"student-{variant}", tags, {**dump, "variant": variant})
+    run_id = tracking.resumable_run(layout, "student", folder, f"student-{variant}", tags, {**dump, "variant": variant})
     tasks = dataset["tasks"]
     table = pa.concat_tables([pq.read_table(dataset["paths"][t]) for t in tasks])
     split = lambda name: windows_from_table(table.filter(pc.equal(table["split"], name)), tasks, cfg.history)  # noqa: E731

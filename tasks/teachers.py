@@ -66,25 +66,6 @@ def _run_folder(layout: DataLayout, task_name: str, method: str, config: Teacher
     return layout.checkpoints / "teachers" / f"{task_name}-{method}-{key.hexdigest()[:12]}"
 
 
-def _mlflow_run(layout: DataLayout, folder: Path, name: str, tags: dict[str, str], params: dict[str, object]) -> str:
-    """The training's MLflow run: the one recorded in its folder (a resumed training continues
-    its curves), else a new one."""
-    import mlflow
-
-    marker = folder / "mlflow_run.json"
-    uri = tracking.tracking_uri(layout)
-    if marker.is_file():
-        saved = json.loads(marker.read_text())
-        if saved.get("tracking_uri") == uri:
-            return saved["run_id"]
-    folder.mkdir(parents=True, exist_ok=True)
-    with tracking.stage_run(layout, "teachers", name, tags) as run:
-        mlflow.log_params(params)
-    tmp = marker.with_suffix(".tmp")
-    tmp.write_text(json.dumps({"run_id": run.info.run_id, "tracking_uri": uri}))
-    tmp.replace(marker)
-    return run.info.run_id
-
 
 @task(cache_policy=cache_policy(*TEACHER_MODULES), persist_result=True, retries=1, task_run_name="teacher-{task_name}-{method}")
 def train_teacher(task_name: str, method: str, config: TeacherConfig, recordings: list[dict], digest: str, data: str, profile: str) -> dict:
@@ -100,7 +81,7 @@ def train_teacher(task_name: str, method: str, config: TeacherConfig, recordings
     refs = _references(layout, recordings, config)
     folder = _run_folder(layout, task_name, method, config, digest)
     tags = {"profile": profile, "task": task_name, "method": method, "demonstrations": str(len(recordings)), "checkpoints": str(folder)}
-    run_id = _mlflow_run(layout, folder, f"teacher-{task_name}-{method}", tags, _params(config, method))
+    run_id = tracking.resumable_run(layout, "teachers", folder, f"teacher-{task_name}-{method}", tags, _params(config, method))
     vec_env = make_teacher_env(task_name, refs, config, method)
     try:
         result = train(vec_env, config, folder, run_id, tracking.tracking_uri(layout))

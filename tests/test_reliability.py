@@ -180,6 +180,36 @@ def test_two_concurrent_ingests_on_one_folder(tmp_path: Path, processes: list[su
     assert not list((data / "lake").rglob("*.tmp")), "a half-written file was left behind"
 
 
+def kill_once_results_persist(proc: subprocess.Popen, results: Path, log: Path, data: Path, group: bool) -> dict[str, int]:
+    """SIGKILL ``proc`` (its whole process group if ``group``) once a few task results are
+    persisted; check nothing of it stays running; the results that were whole at the kill
+    (name -> mtime)."""
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and proc.poll() is None:
+        if results.is_dir() and len(list(results.iterdir())) >= 3:
+            break
+        time.sleep(0.1)
+    time.sleep(1.5)  # the results counted above are complete files by now
+    assert proc.poll() is None, f"the run ended before it could be killed:\n{log.read_text()[-4000:]}"
+    if not group:
+        assert len(live_processes_with(data)) >= 2, "the command runs with its own API server"
+    killed_at = time.time_ns()
+    if group:
+        os.killpg(proc.pid, signal.SIGKILL)
+    else:
+        os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    # results older than a second at the kill were whole files; a younger one may be cut short
+    done_before = {p.name: p.stat().st_mtime_ns for p in results.iterdir() if p.stat().st_mtime_ns < killed_at - 10**9}
+    assert len(done_before) >= 3
+
+    deadline = time.monotonic() + 15
+    while (left := live_processes_with(data)) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not left, f"processes of the killed run survive: {left}"
+    return done_before
+
+
 def test_sigkill_mid_run_leaves_no_server_and_the_rerun_uses_the_cache(tmp_path: Path, processes: list[subprocess.Popen]) -> None:
     data = tmp_path / "data"
     results = data / "prefect" / "results"
@@ -187,26 +217,7 @@ def test_sigkill_mid_run_leaves_no_server_and_the_rerun_uses_the_cache(tmp_path:
     first = start_flow("pipeline", "pipeline", data, first_log)
     processes.append(first)
 
-    # wait until a few tasks have persisted their results, then kill the whole group
-    deadline = time.monotonic() + 300
-    while time.monotonic() < deadline and first.poll() is None:
-        if results.is_dir() and len(list(results.iterdir())) >= 3:
-            break
-        time.sleep(0.2)
-    time.sleep(1.5)  # the results counted above are complete files by now
-    assert first.poll() is None, f"the run ended before it could be killed:\n{first_log.read_text()[-4000:]}"
-    killed_at = time.time_ns()
-    os.killpg(first.pid, signal.SIGKILL)
-    first.wait()
-    # results older than a second at the kill were whole files; a younger one may be cut short
-    done_before = {p.name: p.stat().st_mtime_ns for p in results.iterdir() if p.stat().st_mtime_ns < killed_at - 10**9}
-    assert len(done_before) >= 3
-
-    # nothing of that run is left running (its embedded API server included)
-    deadline = time.monotonic() + 15
-    while (left := live_processes_with(data)) and time.monotonic() < deadline:
-        time.sleep(0.5)
-    assert not left, f"processes of the killed run survive: {left}"
+    done_before = kill_once_results_persist(first, results, first_log, data, group=True)
 
     second_log = tmp_path / "second.log"
     second = start_flow("pipeline", "pipeline", data, second_log)
@@ -240,24 +251,8 @@ def test_sigkill_of_the_command_alone_leaves_nothing_running_and_the_rerun_resum
     try:
         first_log = tmp_path / "first.log"
         first = launch(first_log)
-        deadline = time.monotonic() + 300
-        while time.monotonic() < deadline and first.poll() is None:
-            if results.is_dir() and len(list(results.iterdir())) >= 3:
-                break
-            time.sleep(0.1)
-        time.sleep(1.5)  # the results counted above are complete files by now
-        assert first.poll() is None, f"the run ended before it could be killed:\n{first_log.read_text()[-4000:]}"
-        assert len(live_processes_with(data)) >= 2, "the command runs with its own API server"
-        killed_at = time.time_ns()
-        os.kill(first.pid, signal.SIGKILL)  # the command only, not its process group
-        first.wait()
-        done_before = {p.name: p.stat().st_mtime_ns for p in results.iterdir() if p.stat().st_mtime_ns < killed_at - 10**9}
-        assert len(done_before) >= 3
-
-        deadline = time.monotonic() + 10
-        while (left := live_processes_with(data)) and time.monotonic() < deadline:
-            time.sleep(0.2)
-        assert not left, f"processes of the killed command survive: {left}"
+        # the command only, not its process group: its API server must die with it
+        done_before = kill_once_results_persist(first, results, first_log, data, group=False)
 
         second_log = tmp_path / "second.log"
         second = launch(second_log)

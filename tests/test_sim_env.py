@@ -10,7 +10,7 @@ from tensordict import TensorDict
 
 from touch2robot.sim.config import SimConfig
 from touch2robot.sim.env import BatchEnv
-from touch2robot.sim.rsl_env import JointTracking, RslVecEnv, episode_steps, make_vec_env
+from touch2robot.sim.rsl_env import JointTracking, episode_steps, make_vec_env
 from touch2robot.sim.scene import build_scene
 
 CLOSE = np.array([1.0, 0.0, 1.0, 0.8] * 3 + [1.0, 1.0, 0.6, 0.4])

@@ -6,7 +6,6 @@ DuckDB in-process."""
 from __future__ import annotations
 
 import os
-import subprocess
 import sys
 from pathlib import Path
 from typing import Annotated

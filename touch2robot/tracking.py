@@ -5,9 +5,11 @@ data folder, never in the working directory."""
 from __future__ import annotations
 
 import fcntl
+import json
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext
+from pathlib import Path
 
 import mlflow
 
@@ -79,3 +81,21 @@ def stage_run(layout: DataLayout, stage: str, run_name: str, tags: dict[str, str
         return
     with mlflow.start_run(experiment_id=exp, run_name=run_name, tags={"stage": stage, **(tags or {})}) as run:
         yield run
+
+
+def resumable_run(layout: DataLayout, stage: str, folder: Path, run_name: str, tags: dict[str, str], params: dict) -> str:
+    """The run id of a training kept in ``folder``: the one recorded there (a resumed training
+    continues its curves in the same run), else a new run with ``params``, recorded atomically."""
+    marker = folder / "mlflow_run.json"
+    uri = tracking_uri(layout)
+    if marker.is_file():
+        saved = json.loads(marker.read_text())
+        if saved.get("tracking_uri") == uri:
+            return saved["run_id"]
+    folder.mkdir(parents=True, exist_ok=True)
+    with stage_run(layout, stage, run_name, tags) as run:
+        mlflow.log_params(params)
+    tmp = marker.with_suffix(".tmp")
+    tmp.write_text(json.dumps({"run_id": run.info.run_id, "tracking_uri": uri}))
+    tmp.replace(marker)
+    return run.info.run_id

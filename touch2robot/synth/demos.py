@@ -86,7 +86,6 @@ def rotate(spec: TaskSpec, hand: HumanHand, rng: np.random.Generator, pace: floa
 
 def wipe(spec: TaskSpec, hand: HumanHand, rng: np.random.Generator, pace: float) -> Trajectory:
     """Press the sponge with the flat palm and drag it through the path's waypoints."""
-    scene = Scene.from_task(spec)
     shift = np.r_[rng.uniform(-0.01, 0.01, 2), 0.0]
     path = np.array([[x, y, spec.object.init_pos[2]] for x, y in spec.wipe_path]) + shift
     obj_quat = _yaw(0.0)
