@@ -144,9 +144,7 @@ def student(
     `student`); a killed training resumes from its last checkpoint."""
     _check_profile(profile)
     layout = _layout(data)
-    from flows.student import student as student_flow
-
-    result = student_flow(profile=profile, data=str(layout.root), variants=variant or None)
+    result = _run_flow("flows.student:student", profile=profile, data=str(layout.root), variants=variant or None)
     table = Table("variant", "task", "joint error (rad)", "kinematic input (rad)", "contact F1", "predicted F1", "success")
     for r in result.get("heldout", []):
         table.add_row(r["variant"], r["task"], f"{r['joint_error_student']:.4f}", f"{r['joint_error_kinematic']:.4f}",
