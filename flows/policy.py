@@ -1,6 +1,6 @@
-"""Flow `policy`: per task x method with rollouts in the lake (best origin: student > teacher >
-kinematic), the LeRobot dataset of its robot demonstrations, LeRobot's Diffusion Policy trained on
-it and its closed-loop success (``policy_eval`` table, MLflow runs of stage "policy")."""
+"""Flow `policy`: per task x method with rollouts in the lake (the most preferred origin of the
+profile's ``policy.origins``, default student > teacher > kinematic), the LeRobot dataset of its
+robot demonstrations, LeRobot's Diffusion Policy trained on it and its closed-loop success (``policy_eval`` table, MLflow runs of stage "policy")."""
 
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ def policy(profile: str = "smoke", data: str | None = None, tasks: list[str] | N
     layout = DataLayout.from_env(data)
     config = load_profile(profile).policy
     tasks, methods = tasks or config.tasks, methods or config.methods
-    sources = [s for s in rollout_sources(str(layout.root)) if (not tasks or s["task"] in tasks) and (not methods or s["method"] in methods)]
+    sources = [s for s in rollout_sources(str(layout.root), config.origins) if (not tasks or s["task"] in tasks) and (not methods or s["method"] in methods)]
     if not sources:
         print(f"policy: no rollouts in {layout.lake / 'rollouts'} (run the teachers first)")
         return []

@@ -123,9 +123,9 @@ def report_policy(profile: str, rows: list[dict]) -> list[dict]:
     return rows
 
 
-def rollout_sources(data: str) -> list[dict]:
-    """The rollouts file of every task x method (best origin), with its content hash."""
+def rollout_sources(data: str, origins: tuple[str, ...]) -> list[dict]:
+    """The rollouts file of every task x method (most preferred of ``origins``), with its content hash."""
     from touch2robot.policy.dataset import sources
 
     layout = DataLayout.from_env(data)
-    return [{"task": s.task, "method": s.method, "origin": s.origin, "path": str(s.path), "digest": file_digest(s.path)} for s in sources(layout.lake)]
+    return [{"task": s.task, "method": s.method, "origin": s.origin, "path": str(s.path), "digest": file_digest(s.path)} for s in sources(layout.lake, tuple(origins))]

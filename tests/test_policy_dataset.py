@@ -52,6 +52,15 @@ def test_sources_take_the_best_origin_per_task_and_method(lake: Path) -> None:
     assert found == [("pick", "contrack", "teacher"), ("drawer", "dex-retargeting", "kinematic")]
 
 
+def test_origins_narrow_and_order_the_choice(lake: Path) -> None:
+    assert [(s.task, s.method) for s in sources(lake, ("teacher",))] == [("pick", "contrack")]
+    only_kinematic = {(s.task, s.method, s.origin) for s in sources(lake, ("kinematic",))}
+    assert ("drawer", "dex-retargeting", "kinematic") in only_kinematic
+    assert all(origin == "kinematic" for _, _, origin in only_kinematic)
+    with pytest.raises(ValueError, match="policy.origins.*'replay'"):
+        sources(lake, ("teacher", "replay"))
+
+
 def test_dataset_round_trips_through_lerobots_loader(dataset) -> None:
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 

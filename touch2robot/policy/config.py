@@ -17,6 +17,11 @@ class PolicyConfig(BaseModel):
     # --- datasets
     tasks: tuple[str, ...] | None = Field(None, description="tasks to learn; None = every task with rollouts")
     methods: tuple[str, ...] | None = Field(None, description="data-collection methods to compare; None = every method with rollouts")
+    origins: tuple[str, ...] = Field(
+        ("student", "teacher", "kinematic"), min_length=1,
+        description="rollout origins a method's dataset may come from, most preferred first "
+        "(e.g. [teacher, kinematic] compares every method on its teacher's rollouts)",
+    )
     image_size: int = Field(224, ge=8, description="square RGB image side (px) of both camera views")
     cameras: tuple[str, ...] = Field(("cam_left", "cam_right"), min_length=1, description="scene cameras recorded")
     max_rollouts: int | None = Field(None, ge=1, description="rollouts per task x method put in a dataset; None = all")

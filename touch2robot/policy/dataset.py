@@ -95,18 +95,24 @@ def dataset_id(task: str, method: str) -> str:
     return f"touch2robot/{method}-{task}"
 
 
-def sources(lake: Path) -> list[Source]:
-    """Per task x method present in the lake's ``rollouts`` table, the best origin's file
-    (student > teacher > kinematic), sorted by task then method."""
+def sources(lake: Path, preference: tuple[str, ...] = ORIGIN_PREFERENCE) -> list[Source]:
+    """Per task x method present in the lake's ``rollouts`` table, the file of the most
+    preferred origin (default student > teacher > kinematic; origins not in ``preference``
+    are never used), sorted by task then method."""
+    unknown = set(preference) - set(ORIGIN_PREFERENCE)
+    if unknown:
+        raise ValueError(f"policy.origins: unknown origin(s) {sorted(unknown)}; choose from {ORIGIN_PREFERENCE}")
     best: dict[tuple[str, str], Source] = {}
     for path in lake_io.files(lake, "rollouts"):
         key, _, method = path.parent.name.partition("=")
         origin, _, task = path.stem.partition("-")
         if key != "method" or origin not in ORIGIN_PREFERENCE or task not in TASKS:
             raise RolloutError(f"{path}: expected lake/rollouts/method=<m>/<origin>-<task>.parquet with origin in {ORIGIN_PREFERENCE}, task in {TASKS}")
+        if origin not in preference:
+            continue
         cand = Source(task, method, origin, path)
         old = best.get((task, method))
-        if old is None or ORIGIN_PREFERENCE.index(origin) < ORIGIN_PREFERENCE.index(old.origin):
+        if old is None or preference.index(origin) < preference.index(old.origin):
             best[(task, method)] = cand
     return sorted(best.values(), key=lambda s: (TASKS.index(s.task), s.method))
 
