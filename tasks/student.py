@@ -83,7 +83,6 @@ def augment_dataset(config: StudentConfig, teacher: TeacherConfig, split: dict, 
     return {"paths": paths, "tasks": tasks, "digest": _sha([manifest["tasks"][t]["sha256"] for t in tasks]), "mlflow_run": run.info.run_id, "split": split}
 
 
-
 def _clouds(tasks: list[str], teacher: TeacherConfig):
     import numpy as np
     import torch

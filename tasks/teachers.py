@@ -66,7 +66,6 @@ def _run_folder(layout: DataLayout, task_name: str, method: str, config: Teacher
     return layout.checkpoints / "teachers" / f"{task_name}-{method}-{key.hexdigest()[:12]}"
 
 
-
 @task(cache_policy=cache_policy(*TEACHER_MODULES), persist_result=True, retries=1, task_run_name="teacher-{task_name}-{method}")
 def train_teacher(task_name: str, method: str, config: TeacherConfig, recordings: list[dict], digest: str, data: str, profile: str) -> dict:
     """Train (or finish training) the teacher of one task and method; metrics stream to one MLflow
