@@ -38,12 +38,15 @@ TINY = StudentConfig(augmented_rollouts=16, d_model=32, ff_dim=64, pointnet_hidd
 TASKS = ["drawer", "pick", "rotate", "wipe"]
 
 
+FINGER_OFFSET_RAD, WRIST_DROP_M = 0.05, 0.01
+
+
 def scripted_teacher(obs: dict[str, np.ndarray]) -> np.ndarray:
     """A stand-in teacher with a learnable rule: fingers 0.05 rad beyond the kinematic
     reference, wrist 1 cm lower."""
     a = np.zeros((len(obs["actor"]), NUM_ACTIONS))
-    a[:, :16] = 0.2
-    a[:, 18] = -0.25
+    a[:, :16] = FINGER_OFFSET_RAD / TEACHER.action_scale
+    a[:, 18] = -WRIST_DROP_M / TEACHER.wrist_pos_scale_m
     return a
 
 
@@ -108,9 +111,9 @@ def test_paired_steps_follow_the_teacher(student_lake: Path, references: dict) -
     # step j pairs frame j's kinematic joints with the command of row j - 1 (aimed at frame j)
     np.testing.assert_allclose(seq.target_joints, target[:-1])
     np.testing.assert_allclose(seq.joints, ro.column(first, "reference_joints")[1:])
-    np.testing.assert_allclose(seq.target_joints - seq.joints, 0.05, atol=1e-5)  # the scripted teacher's rule
+    np.testing.assert_allclose(seq.target_joints - seq.joints, FINGER_OFFSET_RAD, atol=1e-5)  # the scripted teacher's rule
     np.testing.assert_array_equal(seq.contact, ro.column(first, "region_force")[1:] > 0.5)
-    np.testing.assert_allclose(wrist_residual(seq.wrist_pose, seq.target_wrist)[:, :3], [[0, 0, -0.01]] * len(seq.step), atol=1e-9)
+    np.testing.assert_allclose(wrist_residual(seq.wrist_pose, seq.target_wrist)[:, :3], [[0, 0, -WRIST_DROP_M]] * len(seq.step), atol=1e-9)
 
 
 def test_augmentation_shares_the_noise_and_is_seeded(student_lake: Path, references: dict) -> None:
@@ -124,7 +127,7 @@ def test_augmentation_shares_the_noise_and_is_seeded(student_lake: Path, referen
     noise = inputs - np.concatenate([seqs[0].joints, seqs[1].joints] * 4)[: len(inputs)]
     assert not augmented[: 2 * len(seqs[0].step)].any()
     assert 0.08 < noise[augmented].std() < 0.12 and np.abs(noise[~augmented]).max() < 1e-6
-    np.testing.assert_allclose(targets - inputs, 0.05, atol=1e-5)  # frame-wise correspondence holds
+    np.testing.assert_allclose(targets - inputs, FINGER_OFFSET_RAD, atol=1e-5)  # frame-wise correspondence holds
     assert augment(seqs, 7, 0.1, seed=3).equals(table)
     assert per_task_counts(400, TASKS) == {"pick": 100, "rotate": 100, "wipe": 100, "drawer": 100}
     assert sum(per_task_counts(10, ["pick", "wipe", "drawer"]).values()) == 10

@@ -201,22 +201,23 @@ def _mean_return(vec_env, runner, episodes_steps: int) -> float:
 @pytest.mark.usefixtures("one_torch_thread")
 def test_teacher_return_rises_with_training(refs: dict[str, References]) -> None:
     """Smoke-sized PPO (Table VII's algorithm and learning rate, small sizes) on the Touch2Robot
-    objective for Drawer: the mean first-episode return of the training policy rises. (The
-    kinematic reference alone loses the drawer after ~3 s; the residuals learn to hold it.)"""
+    objective for Wipe: the mean first-episode return of the training policy rises (measured
+    158.7 -> 189.6 -> 230.5 -> 238.6 after 0/10/20/30 iterations: the residuals learn to keep the
+    sponge on its path under the exploration noise)."""
     from rsl_rl.runners import OnPolicyRunner
 
     torch.manual_seed(0)
     config = SMALL.model_copy(update={"sim": SimConfig(n_envs=32)})
-    vec_env = make_teacher_env("drawer", refs["drawer"], config, "touch2robot")
+    vec_env = make_teacher_env("wipe", refs["wipe"], config, "touch2robot")
     runner = OnPolicyRunner(vec_env, runner_config(config.ppo), log_dir=None, device="cpu")
-    steps = int(refs["drawer"].length[0])
+    steps = int(refs["wipe"].length[0])
     curve = [_mean_return(vec_env, runner, steps)]
     for _ in range(3):
         runner.learn(10)
         curve.append(_mean_return(vec_env, runner, steps))
     vec_env.env.close()
     print(f"teacher mean episode return after 0/10/20/30 PPO iterations: {[round(c, 1) for c in curve]}")
-    assert curve[-1] > 1.08 * curve[0]
+    assert curve[-1] > 1.2 * curve[0]
 
 
 @pytest.mark.usefixtures("one_torch_thread")
