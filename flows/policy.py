@@ -20,8 +20,7 @@ def policy(profile: str = "smoke", data: str | None = None, tasks: list[str] | N
     (narrowed by ``tasks`` / ``methods``, default the profile's ``policy`` section)."""
     layout = DataLayout.from_env(data)
     config = load_profile(profile).policy
-    tasks, methods = tasks or config.tasks, methods or config.methods
-    sources = [s for s in rollout_sources(str(layout.root), config.origins) if (not tasks or s["task"] in tasks) and (not methods or s["method"] in methods)]
+    sources = rollout_sources(str(layout.root), config, tasks or config.tasks, methods or config.methods)
     if not sources:
         print(f"policy: no rollouts in {layout.lake / 'rollouts'} (run the teachers first)")
         return []

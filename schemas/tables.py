@@ -225,8 +225,9 @@ retargeted = pa.schema(
 # applied from it (LeRobot's frame convention: observation and action of the same frame).
 # ``origin`` says what produced the commands: "teacher" (a trained PPO teacher, deterministic
 # actions: touch2robot, contrack, dexmachina), "kinematic" (dex-retargeting: the kinematic
-# trajectory replayed with no residual) or "student" (touch2robot's distilled student on a
-# held-out demonstration). Row 0 of a rollout is its reset state, so replaying the commands from
+# trajectory replayed with no residual) or "student" (touch2robot's distilled student, on every
+# demonstration of the task: the held-out ones are those in `student_predictions`, the others
+# were trained on, as every teacher trained on all of them). Row 0 of a rollout is its reset state, so replaying the commands from
 # it in the same scene reproduces the rollout: reset with hand qpos = joint_position, servo targets
 # = joint_position, wrist body and mocap = wrist_state, object = object_pose (drawer: drawer_opening)
 # (touch2robot.teachers.rollouts.reset_to_rows). Files: lake/rollouts/method=<m>/<origin>-<task>.parquet

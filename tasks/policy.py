@@ -20,7 +20,7 @@ from touch2robot.settings import DataLayout
 from touch2robot.sim.config import SimConfig
 
 POLICY_MODULES = ("touch2robot.policy", "touch2robot.sim", "touch2robot.scenes", "touch2robot.leap", "touch2robot.lake")
-DATASET_FIELDS = ("image_size", "cameras", "max_rollouts")
+DATASET_FIELDS = ("image_size", "cameras", "max_rollouts", "same_demonstrations")
 TAGS_NOTE = "none: ResNet-18 trained from scratch (pretrained_backbone_weights=None, no downloads)"
 
 
@@ -37,7 +37,7 @@ def build_policy_dataset(source: dict, config: PolicyConfig, sim: SimConfig, dat
     from touch2robot.sim.scene import build_scene
 
     layout = DataLayout.from_env(data)
-    rollouts = read_rollouts(Path(source["path"]), config.max_rollouts)
+    rollouts = read_rollouts(Path(source["path"]), config.max_rollouts, source["references"])
     root = layout.datasets / f"{source['method']}-{source['task']}"
     summary = build_dataset(root, source["task"], source["method"], rollouts, build_scene(source["task"], sim), sim, config)
     get_run_logger().info("%s: %d episodes, %d frames, rendering %.0f images/s, replay error max %.2e rad",
@@ -56,7 +56,7 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -
 
     layout = DataLayout.from_env(data)
     settings = config.model_dump(mode="json", exclude={*DATASET_FIELDS, "eval_episodes", "eval_batch", "eval_seed", "object_noise_m", "video_episodes"})
-    key = _digest({"dataset": dataset["digest"], "frames": dataset["frames"], **settings})
+    key = _digest({"dataset": dataset["digest"], "references": dataset["references"], "frames": dataset["frames"], **settings})
     out = layout.policies / f"{dataset['method']}-{dataset['task']}-{key}"
     out.mkdir(parents=True, exist_ok=True)
     run_file = out / "mlflow_run_id"
@@ -90,7 +90,7 @@ def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: s
 
     layout = DataLayout.from_env(data)
     scene = build_scene(trained["task"], sim)
-    rollouts = read_rollouts(Path(trained["path"]), config.max_rollouts)
+    rollouts = read_rollouts(Path(trained["path"]), config.max_rollouts, trained["references"])
     starts = episode_starts(scene, rollouts, config.eval_episodes, config.eval_seed, config.object_noise_m)
     policy, pre, post = load_policy(Path(trained["policy_dir"]), config.device)
     result = rollout_policy(policy, pre, post, scene, sim, starts, config, video_episodes=config.video_episodes)
@@ -123,9 +123,23 @@ def report_policy(profile: str, rows: list[dict]) -> list[dict]:
     return rows
 
 
-def rollout_sources(data: str, origins: tuple[str, ...]) -> list[dict]:
-    """The rollouts file of every task x method (most preferred of ``origins``), with its content hash."""
-    from touch2robot.policy.dataset import sources
+def rollout_sources(data: str, config: PolicyConfig, tasks: list[str] | None = None, methods: list[str] | None = None) -> list[dict]:
+    """The rollouts file of every task x method (most preferred of ``config.origins``, narrowed to
+    ``tasks`` / ``methods``), with its content hash and, with ``config.same_demonstrations``, the
+    demonstrations all of the task's methods follow (``references``; None = every rollout)."""
+    from touch2robot.policy.dataset import common_demonstrations, sources
 
     layout = DataLayout.from_env(data)
-    return [{"task": s.task, "method": s.method, "origin": s.origin, "path": str(s.path), "digest": file_digest(s.path)} for s in sources(layout.lake, tuple(origins))]
+    chosen = [s for s in sources(layout.lake, tuple(config.origins)) if (not tasks or s.task in tasks) and (not methods or s.method in methods)]
+    shared = {}
+    if config.same_demonstrations:
+        for task_name in {s.task for s in chosen}:
+            shared[task_name] = common_demonstrations([s.path for s in chosen if s.task == task_name])
+    out = []
+    for s in chosen:
+        references = shared.get(s.task)
+        if references == []:
+            get_run_logger().warning("policy: the methods of %s follow no demonstration in common; %s is skipped", s.task, s.method)
+            continue
+        out.append({"task": s.task, "method": s.method, "origin": s.origin, "path": str(s.path), "digest": file_digest(s.path), "references": references})
+    return out

@@ -140,8 +140,11 @@ def train_student(variant: str, config: StudentConfig, teacher: TeacherConfig, d
 def reconstruct(trained: dict, config: StudentConfig, teacher: TeacherConfig, split: dict, recordings: list[dict], digest: str, data: str) -> list[dict]:
     """Reconstruct every held-out demonstration with one trained variant: executed in MuJoCo,
     figures per task to the variant's MLflow run. The full model's reconstructions are the
-    lake's: ``rollouts`` (origin student), ``contacts`` (source reconstructed) and
-    ``student_predictions``; the ablations are compared in MLflow only."""
+    lake's: ``contacts`` (source reconstructed) and ``student_predictions`` of the held-out
+    demonstrations, and ``rollouts`` (origin student) of every demonstration of the task, the
+    trained-on ones too: those are Touch2Robot's robot demonstrations for the policy stage, made
+    from the same human demonstrations as every other method's (whose teachers trained on all of
+    them). The ablations are compared in MLflow only."""
     import mlflow
     import pyarrow.parquet as pq
     import torch
@@ -159,9 +162,11 @@ def reconstruct(trained: dict, config: StudentConfig, teacher: TeacherConfig, sp
     for task_name, ids in sorted(split["held_out"].items()):
         if not ids:
             continue
-        refs = list(_references(layout, [by_id[i] for i in ids], teacher).values())
+        trained_on = [i for role in ("train", "val") for i in split[role].get(task_name, []) if i not in ids]
+        reconstructed = ids + trained_on if variant == "full" else ids
+        refs = list(_references(layout, [by_id[i] for i in reconstructed], teacher).values())
         source = teacher_rollouts_path(layout.lake, method, task_name)
-        result = reconstruct_task(net, task_name, refs, teacher, method, variant, pq.read_table(source) if source.is_file() else None)
+        result = reconstruct_task(net, task_name, refs, teacher, method, variant, pq.read_table(source) if source.is_file() else None, evaluated=ids)
         if variant == "full":
             lake_io.write_rows(layout.lake, "rollouts", f"student-{task_name}", result.rollouts, {"method": method})
             lake_io.write_rows(layout.lake, "contacts", f"student-{method}", result.contacts, {"source": "reconstructed", "task": task_name})

@@ -80,7 +80,8 @@ def scripted_rollout_rows(task: str, method: str, n: int, steps: int, origin: st
     """``rollouts`` rows from real MuJoCo physics for tests of the stages that read the table:
     ``n`` copies of a task scene reset at home, driven by a scripted grasp (joint targets blending
     from home toward a closed hand, the wrist lowering then rising; timing varied per copy). Row
-    ``k`` holds the state observed before command ``k`` and that command, as the teachers write."""
+    ``k`` holds the state observed before command ``k`` and that command, as the teachers write.
+    Copy ``i`` follows demonstration ``scripted-<i>``."""
     import numpy as np
     import pyarrow as pa
 
@@ -95,7 +96,7 @@ def scripted_rollout_rows(task: str, method: str, n: int, steps: int, origin: st
     home = env.home_state[env.layout.qpos][env.scene.hand_qpos]
     onset = rng.uniform(3, 8, n)
     depth = rng.uniform(0.035, 0.05, n)
-    rows: dict[str, list] = {k: [] for k in ("rollout_id", "step", "joint_position", "joint_velocity", "joint_target", "wrist_state", "wrist_pose", "object_pose", "drawer_opening", "region_force", "progress", "success")}
+    rows: dict[str, list] = {k: [] for k in ("rollout_id", "reference_id", "step", "joint_position", "joint_velocity", "joint_target", "wrist_state", "wrist_pose", "object_pose", "drawer_opening", "region_force", "progress", "success")}
     for k in range(steps):
         grip = np.clip((k - onset) / 10, 0, 1)[:, None]
         targets = home + grip * close
@@ -105,6 +106,7 @@ def scripted_rollout_rows(task: str, method: str, n: int, steps: int, origin: st
         obj = env.object_pose if not env.scene.is_drawer else np.zeros((n, 7))
         for i in range(n):
             rows["rollout_id"].append(f"{origin}-{method}-{task}-{i:03d}")
+            rows["reference_id"].append(f"scripted-{i:03d}")
             rows["step"].append(k)
             rows["joint_position"].append(env.hand_qpos[i].copy())
             rows["joint_velocity"].append(env.hand_qvel[i].copy())
@@ -127,7 +129,6 @@ def scripted_rollout_rows(task: str, method: str, n: int, steps: int, origin: st
             "method": [method] * total,
             "task": [task] * total,
             "subject": ["s00"] * total,
-            "reference_id": ["scripted"] * total,
             "t": [s * dt for s in rows["step"]],
             "t_ref": [s * dt for s in rows["step"]],
             "reference_joints": [r.tolist() for r in rows["joint_target"]],

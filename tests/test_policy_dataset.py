@@ -18,7 +18,7 @@ from conftest import scripted_rollout_rows
 
 from touch2robot import lake as lake_io
 from touch2robot.config import load_profile
-from touch2robot.policy.dataset import ACTION_NAMES, STATE_NAMES, TASK_INSTRUCTIONS, RolloutError, build_dataset, read_rollouts, sources
+from touch2robot.policy.dataset import ACTION_NAMES, STATE_NAMES, TASK_INSTRUCTIONS, RolloutError, build_dataset, common_demonstrations, read_rollouts, sources
 from touch2robot.policy.evaluate import wilson_interval
 from touch2robot.policy.train import lerobot_train_args
 from touch2robot.sim.config import SimConfig
@@ -59,6 +59,37 @@ def test_origins_narrow_and_order_the_choice(lake: Path) -> None:
     assert all(origin == "kinematic" for _, _, origin in only_kinematic)
     with pytest.raises(ValueError, match="policy.origins.*'replay'"):
         sources(lake, ("teacher", "replay"))
+
+
+def test_one_episode_per_demonstration_and_the_same_demonstrations_for_every_method(lake: Path, tmp_path: Path) -> None:
+    teacher = lake_io.file_path(lake, "rollouts", "teacher-pick", {"method": "contrack"})
+    kinematic = lake_io.file_path(lake, "rollouts", "kinematic-pick", {"method": "contrack"})
+    assert common_demonstrations([teacher, kinematic]) == ["scripted-000"]
+    assert [r.rollout_id[-3:] for r in read_rollouts(teacher, references=["scripted-002", "scripted-000"])] == ["002", "000"]
+    # a deterministic teacher's repeats of one demonstration are one episode: the first rollout
+    table = pq.read_table(teacher)
+    repeats = tmp_path / "method=contrack" / "teacher-pick.parquet"
+    repeats.parent.mkdir()
+    pq.write_table(table.set_column(table.schema.get_field_index("reference_id"), "reference_id", pa.array(["scripted-000"] * len(table))), repeats)
+    assert [r.rollout_id for r in read_rollouts(repeats, references=["scripted-000"])] == ["teacher-contrack-pick-000"]
+    with pytest.raises(RolloutError, match=r"teacher-pick.parquet: no rollout follows demonstration\(s\) \['nobody'\]"):
+        read_rollouts(teacher, references=["nobody"])
+
+
+def test_policy_sources_share_their_demonstrations_per_task(tmp_path: Path) -> None:
+    from tasks.policy import rollout_sources
+    from touch2robot.settings import DataLayout
+
+    layout = DataLayout(tmp_path / "data")
+    lake_io.write_rows(layout.lake, "rollouts", "teacher-pick", scripted_rollout_rows("pick", "contrack", 3, 4), partition={"method": "contrack"})
+    lake_io.write_rows(layout.lake, "rollouts", "kinematic-pick", scripted_rollout_rows("pick", "dex-retargeting", 2, 4, origin="kinematic"),
+                       partition={"method": "dex-retargeting"})  # fmt: skip
+    found = {s["method"]: s["references"] for s in rollout_sources(str(layout.root), CONFIG)}
+    assert found == {"contrack": ["scripted-000", "scripted-001"], "dex-retargeting": ["scripted-000", "scripted-001"]}
+    alone = rollout_sources(str(layout.root), CONFIG, methods=["contrack"])
+    assert [s["references"] for s in alone] == [["scripted-000", "scripted-001", "scripted-002"]]
+    every = rollout_sources(str(layout.root), CONFIG.model_copy(update={"same_demonstrations": False}))
+    assert all(s["references"] is None for s in every)
 
 
 def test_dataset_round_trips_through_lerobots_loader(dataset) -> None:

@@ -88,7 +88,7 @@ def test_policy_flow_fills_policy_eval_and_mlflow(tmp_path: Path) -> None:
     lake_io.write_rows(layout.lake, "rollouts", "teacher-pick", scripted_rollout_rows("pick", "contrack", 2, 24), partition={"method": "contrack"})
     lake_io.write_rows(layout.lake, "rollouts", "teacher-pick", scripted_rollout_rows("pick", "dexmachina", 2, 24), partition={"method": "dexmachina"})
     rows = policy(profile="smoke", data=str(layout.root), methods=["contrack"])  # the filter leaves one of the two
-    assert [(r["task"], r["method"], r["origin"], r["episodes"]) for r in rows] == [("pick", "contrack", "teacher", CONFIG.eval_episodes)]
+    assert [(r["task"], r["method"], r["origin"], r["episodes"], r["dataset_episodes"]) for r in rows] == [("pick", "contrack", "teacher", CONFIG.eval_episodes, 2)]
     table = catalog.query(layout, "SELECT task, method, episodes, ci_low <= success_rate AND success_rate <= ci_high AS inside FROM policy_eval")
     assert table.to_pylist() == [{"task": "pick", "method": "contrack", "episodes": CONFIG.eval_episodes, "inside": True}]
     tracking.experiment(layout, "policy")

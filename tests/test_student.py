@@ -217,6 +217,27 @@ def test_executing_the_teachers_own_commands_reproduces_its_rollout(student_lake
     assert student_rows["rollout_id"][0].as_py() == "student-touch2robot-pick-000"
 
 
+def test_reconstruction_runs_every_demonstration_and_scores_the_held_out_ones(trained, student_lake: Path, references: dict) -> None:
+    """The full model also turns trained-on demonstrations into robot ones (rollouts for the
+    policy stage); contacts, predictions and figures cover only the evaluated (held-out) ones."""
+    import dataclasses
+
+    from touch2robot.student.execute import reconstruct_task
+
+    ref = next(r for r in references.values() if r.task == "wipe")
+    seen = dataclasses.replace(ref, recording_id="trained-on")
+    teacher = _teacher_rows(student_lake, "wipe")
+    both = reconstruct_task(trained[0].net, "wipe", [ref, seen], TEACHER, "touch2robot", "full", teacher, evaluated=[ref.recording_id])
+    alone = reconstruct_task(trained[0].net, "wipe", [ref], TEACHER, "touch2robot", "full", teacher)
+    assert set(both.rollouts["reference_id"].to_pylist()) == {ref.recording_id, "trained-on"}
+    for table in (both.contacts, both.predictions):
+        assert set(table["reference_id"].to_pylist()) == {ref.recording_id}
+    assert both.contacts.num_rows == alone.contacts.num_rows and both.figures == alone.figures
+    assert np.isfinite(both.figures["joint_error_student"])
+    with pytest.raises(ValueError, match="nobody"):
+        reconstruct_task(trained[0].net, "wipe", [ref], TEACHER, "touch2robot", "full", evaluated=["nobody"])
+
+
 # ---------------------------------------------------------------- the flow
 @pytest.mark.slow
 def test_student_flow_end_to_end(student_lake: Path, tmp_path: Path) -> None:

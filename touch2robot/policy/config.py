@@ -22,6 +22,12 @@ class PolicyConfig(BaseModel):
         description="rollout origins a method's dataset may come from, most preferred first "
         "(e.g. [teacher, kinematic] compares every method on its teacher's rollouts)",
     )
+    same_demonstrations: bool = Field(
+        True,
+        description="one episode per human demonstration (the first rollout following it), and only the demonstrations "
+        "every compared method of the task has: datasets that differ only in how each method turned the same human "
+        "demonstrations into robot ones; false = every rollout of each method's file",
+    )
     image_size: int = Field(224, ge=8, description="square RGB image side (px) of both camera views")
     cameras: tuple[str, ...] = Field(("cam_left", "cam_right"), min_length=1, description="scene cameras recorded")
     max_rollouts: int | None = Field(None, ge=1, description="rollouts per task x method put in a dataset; None = all")

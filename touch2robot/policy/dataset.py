@@ -125,11 +125,28 @@ def _matrix(table: pa.Table, column: str, width: int, path: Path) -> np.ndarray:
     return flat.reshape(len(table), width).astype(np.float64)
 
 
-def read_rollouts(path: Path, limit: int | None = None) -> list[Rollout]:
-    """The rollouts of one file, by rollout id (the first ``limit``), each sorted by step;
-    steps must run 0, 1, 2, ... (row 0 is the reset state)."""
+def demonstrations(path: Path) -> list[str]:
+    """The human demonstrations (``reference_id``) the rollouts of one file follow, sorted."""
+    try:
+        refs = pq.read_table(path, columns=["reference_id"]).column("reference_id")
+    except (KeyError, pa.ArrowInvalid) as e:
+        raise RolloutError(f"{path}: cannot read column 'reference_id' ({e})") from None
+    return sorted(set(refs.to_pylist()))
+
+
+def common_demonstrations(paths: list[Path]) -> list[str]:
+    """The demonstrations that the rollouts of every file follow (sorted)."""
+    sets = [set(demonstrations(p)) for p in paths]
+    return sorted(set.intersection(*sets)) if sets else []
+
+
+def read_rollouts(path: Path, limit: int | None = None, references: list[str] | None = None) -> list[Rollout]:
+    """The rollouts of one file, by rollout id, each sorted by step; steps must run 0, 1, 2, ...
+    (row 0 is the reset state). With ``references``: only the first rollout following each of
+    those demonstrations, in that order (a deterministic teacher's repeats of a demonstration
+    are the same trajectory). Then the first ``limit``."""
     table = pq.read_table(path)
-    needed = ("rollout_id", "step", "joint_position", "joint_target", "wrist_state", "wrist_pose", "object_pose", "drawer_opening", "success")
+    needed = ("rollout_id", "reference_id", "step", "joint_position", "joint_target", "wrist_state", "wrist_pose", "object_pose", "drawer_opening", "success")
     missing = [c for c in needed if c not in table.column_names]
     if missing:
         raise RolloutError(f"{path}: missing columns {missing}")
@@ -139,8 +156,17 @@ def read_rollouts(path: Path, limit: int | None = None) -> list[Rollout]:
     ids = ids[order]
     names, starts = np.unique(ids, return_index=True)
     ends = np.append(starts[1:], len(ids))
+    spans = list(zip(names, starts, ends))
+    if references is not None:
+        first_of: dict[str, tuple] = {}
+        for span in spans:
+            first_of.setdefault(table.column("reference_id")[int(span[1])].as_py(), span)
+        absent = [r for r in references if r not in first_of]
+        if absent:
+            raise RolloutError(f"{path}: no rollout follows demonstration(s) {absent}")
+        spans = [first_of[r] for r in references]
     out = []
-    for name, a, b in list(zip(names, starts, ends))[:limit]:
+    for name, a, b in spans[:limit]:
         part = table.slice(a, b - a)
         steps = part.column("step").to_numpy()
         if not np.array_equal(steps, np.arange(len(steps))):

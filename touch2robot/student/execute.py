@@ -9,6 +9,7 @@ the reset-replayable row layout and the sim contacts are exactly the teachers' o
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 
 import numpy as np
@@ -95,17 +96,18 @@ def prediction_rows(outputs: list[StudentOutput], refs_ids: tuple[str, ...], t_r
 
 @dataclass
 class Reconstruction:
-    """The held-out demonstrations of one task reconstructed by a student."""
+    """Demonstrations of one task reconstructed by a student."""
 
-    rollouts: pa.Table  # origin student
-    contacts: pa.Table  # source reconstructed
-    predictions: pa.Table  # student_predictions
-    figures: dict[str, float]
+    rollouts: pa.Table  # origin student: every reconstructed demonstration
+    contacts: pa.Table  # source reconstructed: the evaluated demonstrations only
+    predictions: pa.Table  # student_predictions: the evaluated demonstrations only
+    figures: dict[str, float]  # over the evaluated demonstrations
 
 
 def reconstruct_task(net: StudentNet, task: str, refs: list[DemoReference], config: TeacherConfig, method: str, variant: str,
-                     teacher_rollouts: pa.Table | None = None) -> Reconstruction:  # fmt: skip
-    """Batched inference over each demonstration, execution in MuJoCo, and the figures:
+                     teacher_rollouts: pa.Table | None = None, evaluated: Collection[str] | None = None) -> Reconstruction:  # fmt: skip
+    """Batched inference over each demonstration, execution in MuJoCo, and the figures over the
+    ``evaluated`` demonstrations (recording ids; default all of ``refs``):
 
     - ``contact_f1`` (precision, recall): executed sim contacts vs the human preference over all
       time-region pairs; ``success_rate``;
@@ -113,6 +115,10 @@ def reconstruct_task(net: StudentNet, task: str, refs: list[DemoReference], conf
     - ``joint_error_student`` / ``joint_error_kinematic``: mean |joint target - teacher's joint
       command| (rad) of the student and of its kinematic input, over the ``teacher_rollouts`` of
       these demonstrations (NaN without any)."""
+    evaluated = set(r.recording_id for r in refs) if evaluated is None else set(evaluated)
+    unknown = evaluated - {r.recording_id for r in refs}
+    if unknown:
+        raise ValueError(f"evaluated demonstrations {sorted(unknown)} are not among the reconstructed ones")
     points = build_scene(task, config.sim).point_cloud
     outputs = [predict_recording(net, reference_inputs(r), points) for r in refs]
     stacked = stack_references(refs)
@@ -121,12 +127,16 @@ def reconstruct_task(net: StudentNet, task: str, refs: list[DemoReference], conf
         rollouts, contacts = execute(env, DemoTracking(stacked, config, method), outputs, config, method)
     finally:
         env.close()
-    figures = {k: float(v) for k, v in summary(rollouts, stacked, config.sim.contact_threshold_n).items()}
-    predicted = contact_scores(np.concatenate([r.preference for r in refs]), np.concatenate([o.contact_logits > 0 for o in outputs]))
+    keep = pa.array(sorted(evaluated))
+    scored = rollouts.filter(pc.is_in(rollouts["reference_id"], keep))
+    contacts = contacts.filter(pc.is_in(contacts["reference_id"], keep))
+    figures = {k: float(v) for k, v in summary(scored, stacked, config.sim.contact_threshold_n).items()}
+    chosen = [i for i, r in enumerate(refs) if r.recording_id in evaluated]
+    predicted = contact_scores(np.concatenate([refs[i].preference for i in chosen]), np.concatenate([outputs[i].contact_logits > 0 for i in chosen]))
     figures["predicted_contact_f1"] = predicted.f1
     student_err, kinematic_err = [], []
     if teacher_rollouts is not None:
-        by_id = {r.recording_id: (r, o) for r, o in zip(refs, outputs)}
+        by_id = {refs[i].recording_id: (refs[i], outputs[i]) for i in chosen}
         for seq in paired_sequences(teacher_rollouts, {k: v[0] for k, v in by_id.items()}, config.sim.contact_threshold_n):
             ref, out = by_id[seq.reference_id]
             frame = np.minimum(seq.step, ref.length - 1)
@@ -135,4 +145,5 @@ def reconstruct_task(net: StudentNet, task: str, refs: list[DemoReference], conf
     figures["joint_error_student"] = float(np.concatenate(student_err).mean()) if student_err else float("nan")
     figures["joint_error_kinematic"] = float(np.concatenate(kinematic_err).mean()) if kinematic_err else float("nan")
     predictions = prediction_rows(outputs, stacked.ids, [r.t_ref for r in refs], task, method, variant, config.sim.control_dt)
+    predictions = predictions.filter(pc.is_in(predictions["reference_id"], keep))
     return Reconstruction(rollouts, contacts, predictions, figures)
