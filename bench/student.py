@@ -6,6 +6,8 @@ baseline: the student's input is that retargeting, so a recording costs both).
     uv run python bench/student.py [--profile paper] [--tasks pick rotate wipe drawer] [--repeats 2]
 
 The model has the profile's ``student`` sizes and random weights (speed does not depend on them).
+Streaming is measured twice: through the eager modules (the baseline) and through the frozen
+TorchScript trace that ``StreamingStudent`` runs by default.
 """
 
 from __future__ import annotations
@@ -57,7 +59,8 @@ def main() -> None:
     print(f"student ({args.profile}): d_model {cfg.d_model}, {cfg.layers} layers x {cfg.heads} heads, history {cfg.history}, "
           f"{sum(p.numel() for p in net.parameters()) / 1e3:.0f}k parameters; torch threads {torch.get_num_threads()}")  # fmt: skip
     for rep in range(args.repeats):
-        frames, kin_s, batch_s, stream = 0, 0.0, 0.0, []
+        frames, kin_s, batch_s = 0, 0.0, 0.0
+        stream: dict[bool, list[float]] = {False: [], True: []}
         for task, motion in motions:
             t0 = time.perf_counter()
             result = retarget_motion(motion, LEAP_DEFAULT, retargeter)
@@ -70,18 +73,22 @@ def main() -> None:
             t0 = time.perf_counter()
             predict_recording(net, inputs, points)
             batch_s += time.perf_counter() - t0
-            streaming = StreamingStudent(net, points)
-            for x in inputs:
-                t0 = time.perf_counter()
-                streaming.step(x)
-                stream.append(time.perf_counter() - t0)
+            for compiled in (False, True):
+                streaming = StreamingStudent(net, points, compiled=compiled)
+                for x in inputs:
+                    t0 = time.perf_counter()
+                    streaming.step(x)
+                    stream[compiled].append(time.perf_counter() - t0)
             frames += n
-        ms = np.array(stream) * 1e3
         kin_fps, batch_fps = frames / kin_s, frames / batch_s
         print(f"pass {rep + 1}: {frames} frames of {len(motions)} recordings | kinematic retargeting {kin_fps:.0f} frames/s | "
-              f"student batched {batch_fps:.0f} steps/s ({batch_fps / kin_fps:.1f}x the retargeter) | streaming ms/step "
-              f"mean {ms.mean():.2f} p50 {np.median(ms):.2f} p95 {np.percentile(ms, 95):.2f} max {ms.max():.2f} "
-              f"(target < 2 ms: {'met' if np.percentile(ms, 95) < 2 else 'NOT met'} at p95; {1e3 / ms.mean():.0f} steps/s)")  # fmt: skip
+              f"student batched {batch_fps:.0f} steps/s ({batch_fps / kin_fps:.1f}x the retargeter)")  # fmt: skip
+        eager = np.median(stream[False])
+        for compiled, label in ((False, "eager modules"), (True, "frozen trace (default)")):
+            ms = np.array(stream[compiled]) * 1e3
+            print(f"  streaming, {label:22s}: ms/step mean {ms.mean():.2f} p50 {np.median(ms):.2f} p95 {np.percentile(ms, 95):.2f} "
+                  f"max {ms.max():.2f} ({1e3 / ms.mean():.0f} steps/s; p50 {eager / np.median(stream[compiled]):.2f}x the eager path; "
+                  f"target < 2 ms: {'met' if np.percentile(ms, 95) < 2 else 'NOT met'} at p95)")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -167,9 +167,10 @@ def test_streaming_equals_batched_inference(trained, references: dict) -> None:
     ref = next(r for r in references.values() if r.task == "rotate")
     inputs, points = reference_inputs(ref), build_scene("rotate").point_cloud
     batched = predict_recording(net, inputs, points, batch=37)
-    streamed = StreamingStudent(net, points).run(inputs)
-    for a, b in ((batched.joints, streamed.joints), (batched.wrist_residual, streamed.wrist_residual), (batched.contact_logits, streamed.contact_logits)):
-        np.testing.assert_allclose(a, b, atol=1e-5)
+    for compiled in (True, False):  # the frozen TorchScript trace (the default) and the eager modules
+        streamed = StreamingStudent(net, points, compiled=compiled).run(inputs)
+        for a, b in ((batched.joints, streamed.joints), (batched.wrist_residual, streamed.wrist_residual), (batched.contact_logits, streamed.contact_logits)):
+            np.testing.assert_allclose(a, b, atol=1e-5)
     # the served single-tensor form gives the newest step of the same window
     window = np.concatenate([np.repeat(inputs[:1], net.history - 5, axis=0), inputs[:5]])
     packed = torch.as_tensor(np.concatenate([window.ravel(), points.ravel()])[None], dtype=torch.float32)
