@@ -90,7 +90,12 @@ class StreamingStudent:
 
 
 def _frozen(net: StudentNet, window: torch.Tensor, geometry: torch.Tensor) -> torch.jit.ScriptModule:
-    """``net`` traced for one window shape, frozen and optimised for inference."""
+    """``net`` traced for one window shape, frozen and optimised for inference, and warmed up
+    (TorchScript's profiling executor specialises the graph on its first runs: a live first step
+    would otherwise take tens of milliseconds)."""
     with torch.no_grad():
-        traced = torch.jit.trace(net, (window, geometry), check_trace=False)
-        return torch.jit.optimize_for_inference(torch.jit.freeze(traced))
+        traced = torch.jit.optimize_for_inference(torch.jit.freeze(torch.jit.trace(net, (window, geometry), check_trace=False)))
+    with torch.inference_mode():
+        for _ in range(3):
+            traced(window, geometry)
+    return traced
