@@ -19,6 +19,7 @@ from conftest import scripted_rollout_rows
 from touch2robot import lake as lake_io
 from touch2robot.config import load_profile
 from touch2robot.policy.dataset import ACTION_NAMES, STATE_NAMES, TASK_INSTRUCTIONS, RolloutError, build_dataset, common_demonstrations, read_rollouts, sources
+from touch2robot.policy.config import VIDEO_BACKEND
 from touch2robot.policy.evaluate import wilson_interval
 from touch2robot.policy.train import lerobot_train_args
 from touch2robot.sim.config import SimConfig
@@ -100,7 +101,7 @@ def test_dataset_round_trips_through_lerobots_loader(dataset) -> None:
     # replay in the same scene reproduces the recorded physics
     assert summary.replay_max_joint_error_rad < 1e-5
     assert summary.render_frames == 2 * 90 and summary.render_fps > 0
-    ds = LeRobotDataset(summary.repo_id, root=summary.root)
+    ds = LeRobotDataset(summary.repo_id, root=summary.root, video_backend=VIDEO_BACKEND)
     assert ds.num_episodes == 3 and len(ds) == 90 and ds.fps == 20
     assert ds.meta.features["observation.state"]["names"] == list(STATE_NAMES)
     assert ds.meta.features["action"]["names"] == list(ACTION_NAMES)

@@ -8,6 +8,10 @@ from __future__ import annotations
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+# The datasets hold images, not video, so no decoder is needed; naming one stops LeRobot probing
+# torchcodec, which fails without system FFmpeg libraries and logs a traceback per FFmpeg version.
+VIDEO_BACKEND = "pyav"
+
 
 class PolicyConfig(BaseModel):
     """Dataset, Diffusion Policy training (Table IX) and closed-loop evaluation settings."""

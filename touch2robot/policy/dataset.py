@@ -38,7 +38,7 @@ import pyarrow.parquet as pq
 from schemas.tables import ROBOT_REGIONS, ROLLOUT_ORIGINS, TASKS
 from touch2robot import lake as lake_io
 from touch2robot.leap import description as hd
-from touch2robot.policy.config import PolicyConfig
+from touch2robot.policy.config import VIDEO_BACKEND, PolicyConfig
 from touch2robot.sim.config import SimConfig
 from touch2robot.sim.env import BatchEnv
 from touch2robot.sim.scene import Scene
@@ -282,7 +282,7 @@ def build_dataset(
     errors: list[np.ndarray] = []
     renderer = CameraRenderer(scene, cfg.cameras, cfg.image_size)
     try:
-        ds = LeRobotDataset.create(repo_id, FPS, features(cfg), root=tmp, robot_type=ROBOT_TYPE, use_videos=False)
+        ds = LeRobotDataset.create(repo_id, FPS, features(cfg), root=tmp, robot_type=ROBOT_TYPE, use_videos=False, video_backend=VIDEO_BACKEND)
         frames = 0
         for first in range(0, len(rollouts), cfg.replay_batch):
             batch = rollouts[first : first + cfg.replay_batch]

@@ -19,7 +19,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from touch2robot.policy.config import PolicyConfig
+from touch2robot.policy.config import VIDEO_BACKEND, PolicyConfig
 
 CHECKPOINTS = "checkpoints"
 LAST = "last"
@@ -57,7 +57,7 @@ def pipeline_config(dataset_root: Path, repo_id: str, cfg: PolicyConfig, output_
 
     policy = DiffusionConfig(**diffusion_kwargs(cfg))
     pipeline = TrainPipelineConfig(
-        dataset=DatasetConfig(repo_id=repo_id, root=str(dataset_root)),
+        dataset=DatasetConfig(repo_id=repo_id, root=str(dataset_root), video_backend=VIDEO_BACKEND),
         policy=policy,
         output_dir=Path(output_dir),
         seed=cfg.seed,
@@ -80,6 +80,7 @@ def lerobot_train_args(dataset_root: Path, repo_id: str, cfg: PolicyConfig, outp
     args = [
         f"--dataset.repo_id={repo_id}",
         f"--dataset.root={dataset_root}",
+        f"--dataset.video_backend={VIDEO_BACKEND}",
         "--policy.type=diffusion",
         f"--output_dir={output_dir}",
         f"--seed={cfg.seed}",
