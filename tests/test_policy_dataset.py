@@ -18,8 +18,8 @@ from conftest import scripted_rollout_rows
 
 from touch2robot import lake as lake_io
 from touch2robot.config import load_profile
-from touch2robot.policy.dataset import ACTION_NAMES, STATE_NAMES, TASK_INSTRUCTIONS, RolloutError, build_dataset, common_demonstrations, read_rollouts, sources
 from touch2robot.policy.config import VIDEO_BACKEND
+from touch2robot.policy.dataset import ACTION_NAMES, STATE_NAMES, TASK_INSTRUCTIONS, RolloutError, build_dataset, common_demonstrations, read_rollouts, sources
 from touch2robot.policy.evaluate import wilson_interval
 from touch2robot.policy.train import lerobot_train_args
 from touch2robot.sim.config import SimConfig
