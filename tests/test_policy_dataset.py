@@ -21,7 +21,7 @@ from touch2robot.config import load_profile
 from touch2robot.policy.config import VIDEO_BACKEND
 from touch2robot.policy.dataset import ACTION_NAMES, STATE_NAMES, TASK_INSTRUCTIONS, RolloutError, build_dataset, common_demonstrations, read_rollouts, sources
 from touch2robot.policy.evaluate import wilson_interval
-from touch2robot.policy.train import lerobot_train_args
+from touch2robot.policy.train import column_views, lerobot_train_args, pipeline_config
 from touch2robot.sim.config import SimConfig
 from touch2robot.sim.scene import build_scene
 
@@ -116,6 +116,38 @@ def test_dataset_round_trips_through_lerobots_loader(dataset) -> None:
     assert frame["observation.environment_state"].shape == (8,)
     forces = torch.stack([ds[i]["observation.environment_state"] for i in range(60, 90)])
     assert forces.max() > 0.5  # the scripted grasp touches the box: tactile forces are recorded
+
+
+def test_column_views_give_lerobots_samples_decoding_only_the_window_images(dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import pickle
+
+    import datasets.features.image as hf_image
+    from lerobot.datasets.factory import make_dataset
+
+    summary, _ = dataset
+    pipeline = pipeline_config(Path(summary.root), summary.repo_id, CONFIG, tmp_path / "out")
+    plain, viewed = make_dataset(pipeline), make_dataset(pipeline)
+    column_views(viewed)
+    decodes = []
+    real_decode = hf_image.Image.decode_example
+    monkeypatch.setattr(hf_image.Image, "decode_example", lambda self, *a, **k: decodes.append(1) or real_decode(self, *a, **k))
+    counts = {}
+    for name, ds in (("plain", plain), ("viewed", viewed)):
+        decodes.clear()
+        ds[45]
+        counts[name] = len(decodes)
+    cams = len(CONFIG.cameras)
+    assert counts["viewed"] == cams * (1 + CONFIG.n_obs_steps)  # the frame's row, then each camera's window
+    assert counts["plain"] > 5 * counts["viewed"]  # LeRobot 0.6.1 decodes both images of every window row
+    # identical samples, episode edges (padding) included
+    for i in (0, 29, 30, 45, 89):
+        a, b = plain[i], viewed[i]
+        assert a.keys() == b.keys()
+        for key, value in a.items():
+            assert torch.equal(value, b[key]) if isinstance(value, torch.Tensor) else value == b[key], (i, key)
+    # DataLoader workers under spawn receive the reader by pickling
+    clone = pickle.loads(pickle.dumps(viewed))
+    assert type(clone.reader) is type(viewed.reader) and torch.equal(clone[45]["action"], plain[45]["action"])
 
 
 def test_bad_rollouts_file_is_named(tmp_path: Path, lake: Path) -> None:
