@@ -8,6 +8,8 @@ The dataset is the first task x method in ``<data>/lake/rollouts`` (``--data``),
 the tests' scripted grasp in real MuJoCo physics. Both trainers run as fresh processes twice, for
 ``warmup`` and ``warmup + steps`` updates; samples/s = steps x batch / (difference of wall times),
 so start-up (imports, dataset load, model build) cancels out. Rounds alternate to share drift.
+The stage reads its windows through ``column_views`` (LeRobot PR #4314, not in 0.6.1's
+``lerobot-train``), so its ratio exceeds 1 by what that fix saves on image datasets.
 """
 
 from __future__ import annotations

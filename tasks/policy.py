@@ -70,8 +70,7 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -
         run_file.write_text(run.info.run_id)
         mlflow.log_params({**settings, "dataset_root": dataset["root"], "dataset_episodes": dataset["episodes"], "dataset_frames": dataset["frames"]})
         mlflow.log_metrics({"dataset/render_fps": dataset["render_fps"], "dataset/replay_max_joint_error_rad": dataset["replay_max_joint_error_rad"]})
-        result = train(Path(dataset["root"]), dataset["repo_id"], config, out / "lerobot",
-                       on_log=lambda step, m: mlflow.log_metrics({f"train/{k}": v for k, v in m.items()}, step=step))  # fmt: skip
+        result = train(Path(dataset["root"]), dataset["repo_id"], config, out / "lerobot", on_log=tracking.step_logger(run.info.run_id, "train/"))
         mlflow.log_metrics({"train/samples_per_s_total": result.samples_per_s})
         mlflow.log_artifacts(result.policy_dir, "policy")
     return {**dataset, **result.__dict__, "mlflow_run": run.info.run_id}

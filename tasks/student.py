@@ -120,7 +120,7 @@ def train_student(variant: str, config: StudentConfig, teacher: TeacherConfig, d
     clouds = _clouds(tasks, teacher)
     tracking.experiment(layout, "student")
     with mlflow.start_run(run_id=run_id):
-        result = train(split("train"), split("val"), clouds, cfg, folder, on_log=lambda step, m: mlflow.log_metrics(m, step=step))
+        result = train(split("train"), split("val"), clouds, cfg, folder, on_log=tracking.step_logger(run_id))
         mlflow.log_artifact(str(folder / CHECKPOINT), "checkpoints")
         serving = ServingStudent(result.net, clouds.shape[1]).eval()
         window = split("val") if len(split("val")) else split("train")

@@ -7,7 +7,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
@@ -99,3 +99,39 @@ def resumable_run(layout: DataLayout, stage: str, folder: Path, run_name: str, t
     tmp.write_text(json.dumps({"run_id": run.info.run_id, "tracking_uri": uri}))
     tmp.replace(marker)
     return run.info.run_id
+
+
+class UnloggedSteps:
+    """Keeps, of each step's metrics, those the run does not hold yet at that step or later.
+
+    A training resumed from its last checkpoint re-does the updates after it, and the run already
+    holds their figures from before the crash. MLflow cannot replace logged values: logged again,
+    each such step would be drawn twice and the curve would zigzag. The resumed curve continues
+    from the last step the run holds."""
+
+    def __init__(self, client: mlflow.MlflowClient, run_id: str) -> None:
+        self.client, self.run_id = client, run_id
+        self._last: dict[str, int] = {}
+
+    def __call__(self, step: int, metrics: dict[str, float]) -> dict[str, float]:
+        fresh = {}
+        for name, value in metrics.items():
+            if name not in self._last:
+                self._last[name] = max((m.step for m in self.client.get_metric_history(self.run_id, name)), default=-1)
+            if step > self._last[name]:
+                fresh[name] = value
+                self._last[name] = step
+        return fresh
+
+
+def step_logger(run_id: str, prefix: str = "") -> Callable[[int, dict[str, float]], None]:
+    """``on_log(step, metrics)`` for a resumable training: logs ``prefix + name`` into ``run_id``
+    (on the current tracking URI) for the steps the run does not hold yet (``UnloggedSteps``)."""
+    unlogged = UnloggedSteps(mlflow.MlflowClient(), run_id)
+
+    def log(step: int, metrics: dict[str, float]) -> None:
+        fresh = unlogged(step, {prefix + k: v for k, v in metrics.items()})
+        if fresh:
+            mlflow.log_metrics(fresh, step=step, run_id=run_id)
+
+    return log

@@ -20,6 +20,7 @@ from touch2robot.sim.rsl_env import RslVecEnv
 from touch2robot.sim.scene import build_scene
 from touch2robot.teachers.config import PPOConfig, TeacherConfig
 from touch2robot.teachers.objective import DemoTracking, References
+from touch2robot.tracking import UnloggedSteps
 
 CHECKPOINT = re.compile(r"model_(\d+)\.pt$")
 
@@ -66,22 +67,24 @@ class MlflowLogWriter(LogWriter):
     def __init__(self, log_dir: str | None, run_id: str, tracking_uri: str) -> None:
         self.run_id = run_id
         self.client = MlflowClient(tracking_uri)
-        self._pending: list[Metric] = []
+        self._unlogged = UnloggedSteps(self.client, run_id)  # a resumed run: no iteration drawn twice
+        self._pending: dict[str, float] = {}
         self._step = -1
 
     def add_scalar(self, tag: str, scalar_value: float, global_step: int) -> None:
         if global_step != self._step:
             self.flush()
-            self._step = global_step
+            self._step = int(global_step)
         value = float(scalar_value)
         if value == value:  # MLflow rejects NaN only on some stores; skip it everywhere
-            self._pending.append(Metric(metric_name(tag), value, 0, int(global_step)))
+            self._pending[metric_name(tag)] = value
 
     def flush(self) -> None:
         """Send the buffered scalars in one request (MLflow's batch limit is 1000)."""
-        for i in range(0, len(self._pending), 1000):
-            self.client.log_batch(self.run_id, metrics=self._pending[i : i + 1000])
-        self._pending = []
+        metrics = [Metric(k, v, 0, self._step) for k, v in self._unlogged(self._step, self._pending).items()]
+        for i in range(0, len(metrics), 1000):
+            self.client.log_batch(self.run_id, metrics=metrics[i : i + 1000])
+        self._pending = {}
 
     def save_model(self, model_path: str, it: int) -> None:
         self.flush()

@@ -1,0 +1,53 @@
+"""MLflow tracking of resumable trainings: a training resumed from its last checkpoint re-does the
+updates after it; their figures are in the run already, so each step is drawn once."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mlflow
+from mlflow.tracking import MlflowClient
+
+from touch2robot import tracking
+from touch2robot.settings import DataLayout
+from touch2robot.teachers.train import MlflowLogWriter
+
+
+def _steps(uri: str, run_id: str, key: str) -> list[int]:
+    return sorted(m.step for m in MlflowClient(uri).get_metric_history(run_id, key))
+
+
+def test_a_resumed_training_logs_each_step_once(tmp_path: Path) -> None:
+    layout = DataLayout(tmp_path / "data")
+    with tracking.stage_run(layout, "policy", "resume") as run:
+        run_id = run.info.run_id
+    uri = tracking.tracking_uri(layout)
+    first = tracking.step_logger(run_id, "train/")
+    for step in range(10, 70, 10):  # crashed after step 60; its last checkpoint was at 40
+        first(step, {"loss": 1.0, "lr": 0.1})
+    resumed = tracking.step_logger(run_id, "train/")  # a new process
+    for step in range(50, 110, 10):
+        resumed(step, {"loss": 0.5, "lr": 0.1, "grad_norm": 2.0})
+    assert _steps(uri, run_id, "train/loss") == list(range(10, 110, 10))
+    assert [m.value for m in sorted(MlflowClient(uri).get_metric_history(run_id, "train/loss"), key=lambda m: m.step)][-4:] == [0.5] * 4
+    assert _steps(uri, run_id, "train/grad_norm") == list(range(50, 110, 10))  # a new metric starts where it is first logged
+    assert mlflow.active_run() is None
+
+
+def test_the_teachers_log_writer_skips_iterations_the_run_holds(tmp_path: Path) -> None:
+    layout = DataLayout(tmp_path / "data")
+    with tracking.stage_run(layout, "teachers", "resume") as run:
+        run_id = run.info.run_id
+    uri = tracking.tracking_uri(layout)
+    before = MlflowLogWriter(None, run_id, uri)
+    for it in range(4):  # killed after iteration 3, checkpoint at 1
+        before.add_scalar("Loss/value", 1.0, it)
+        before.add_scalar("Train/mean_reward", float(it), it)
+    before.stop()
+    after = MlflowLogWriter(None, run_id, uri)
+    for it in range(2, 6):
+        after.add_scalar("Loss/value", 0.5, it)
+        after.add_scalar("Train/mean_reward", float(it), it)
+    after.stop()
+    assert _steps(uri, run_id, "Loss/value") == list(range(6))
+    assert _steps(uri, run_id, "Train/mean_reward") == list(range(6))
