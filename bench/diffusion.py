@@ -1,6 +1,7 @@
 """Diffusion Policy training throughput of the project's stage (``touch2robot.policy.train.train``)
 against LeRobot's own ``lerobot-train`` on the same dataset and settings, in the same run (target
-ratio >= 0.95), and the dataset builder's rendering rate (camera images per second).
+ratio >= 0.95), the dataset builder's rendering rate (camera images per second), and the time
+to read one training sample through LeRobot's reader against ``column_views``.
 
     uv run python bench/diffusion.py [--profile smoke] [--steps 20] [--warmup 5] [--data DIR]
 
@@ -50,6 +51,29 @@ def _dataset(data: Path | None, cfg, out: Path) -> tuple[Path, str, float]:
     return Path(summary.root), summary.repo_id, summary.render_fps
 
 
+def _sample_reads(root: Path, repo_id: str, cfg, out: Path, samples: int = 64) -> None:
+    """ms per training sample (observation and action windows) read through LeRobot's reader and
+    through ``column_views``, on the same dataset and indices."""
+    from lerobot.datasets.factory import make_dataset
+
+    from touch2robot.policy.train import column_views, pipeline_config
+
+    pipeline = pipeline_config(root, repo_id, cfg, out / "read")
+    ms = {}
+    for name in ("lerobot", "column views"):
+        ds = make_dataset(pipeline)
+        if name == "column views":
+            column_views(ds)
+        ds[0]
+        idx = [(7919 * i) % len(ds) for i in range(samples)]
+        start = time.perf_counter()
+        for i in idx:
+            ds[i]
+        ms[name] = 1000 * (time.perf_counter() - start) / samples
+    print(f"sample read: LeRobot 0.6.1 reader {ms['lerobot']:.1f} ms, column views {ms['column views']:.1f} ms, "
+          f"ratio {ms['lerobot'] / ms['column views']:.1f}x")
+
+
 def _wall(cmd: list[str]) -> float:
     env = {**os.environ, "OMP_NUM_THREADS": "1", "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
     start = time.perf_counter()
@@ -75,6 +99,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         root, repo_id, _ = _dataset(args.data, cfg, tmp)
+        _sample_reads(root, repo_id, cfg, tmp)
         rates: dict[str, list[float]] = {"ours": [], "lerobot-train": []}
         cli = str(Path(sys.executable).with_name("lerobot-train"))
         for r in range(args.rounds):
