@@ -9,7 +9,7 @@ The dataset is the first task x method in ``<data>/lake/rollouts`` (``--data``),
 the tests' scripted grasp in real MuJoCo physics. Both trainers run as fresh processes twice, for
 ``warmup`` and ``warmup + steps`` updates; samples/s = steps x batch / (difference of wall times),
 so start-up (imports, dataset load, model build) cancels out. Rounds alternate to share drift.
-The stage reads its windows through ``column_views`` (LeRobot PR #4314, not in 0.6.1's
+The stage reads its windows through ``touch2robot.policy.reader`` (LeRobot PR #4314, not in 0.6.1's
 ``lerobot-train``), so its ratio exceeds 1 by what that fix saves on image datasets.
 """
 
@@ -56,7 +56,8 @@ def _sample_reads(root: Path, repo_id: str, cfg, out: Path, samples: int = 64) -
     through ``column_views``, on the same dataset and indices."""
     from lerobot.datasets.factory import make_dataset
 
-    from touch2robot.policy.train import column_views, pipeline_config
+    from touch2robot.policy.reader import column_views
+    from touch2robot.policy.train import pipeline_config
 
     pipeline = pipeline_config(root, repo_id, cfg, out / "read")
     ms = {}

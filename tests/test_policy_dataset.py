@@ -21,7 +21,8 @@ from touch2robot.config import load_profile
 from touch2robot.policy.config import VIDEO_BACKEND
 from touch2robot.policy.dataset import ACTION_NAMES, STATE_NAMES, TASK_INSTRUCTIONS, RolloutError, build_dataset, common_demonstrations, read_rollouts, sources
 from touch2robot.policy.evaluate import wilson_interval
-from touch2robot.policy.train import column_views, lerobot_train_args, pipeline_config
+from touch2robot.policy.reader import column_views
+from touch2robot.policy.train import lerobot_train_args, pipeline_config
 from touch2robot.sim.config import SimConfig
 from touch2robot.sim.scene import build_scene
 

@@ -11,10 +11,9 @@ size and steps; ``pretrained_backbone_weights=None`` (a ResNet-18 from scratch: 
 ``drop_n_last_frames`` follows LeRobot's formula for the chosen horizon; everything else is
 LeRobot's default. ``lerobot_train_args`` gives the same run as a ``lerobot-train`` command line.
 
-One difference in loading: ``column_views`` makes the dataset answer its observation/action
-windows from single-column views (the fix of LeRobot PR #4314, unreleased in 0.6.1). Without it
-every window row decodes both camera images, 66 PNG decodes per sample instead of 6 here, a third
-of a CPU update. The samples are identical (tested).
+One difference in loading: ``touch2robot.policy.reader.column_views`` makes the dataset read its
+observation/action windows from single-column views (LeRobot PR #4314, unreleased in 0.6.1).
+Without it every window row decodes both camera images, a third of a CPU update.
 """
 
 from __future__ import annotations
@@ -110,60 +109,6 @@ def lerobot_train_args(dataset_root: Path, repo_id: str, cfg: PolicyConfig, outp
     return args
 
 
-def column_views(dataset) -> None:
-    """Make a ``LeRobotDataset`` read its delta windows from single-column views.
-
-    LeRobot sets a custom transform on its HF dataset, and ``datasets`` >= 4.4 then fetches (and
-    decodes) whole rows for ``hf_dataset[key][indices]``: every image column of the window's rows,
-    for a window of actions. A ``select_columns`` view keeps the (column-wise) transform and
-    decodes only its column. Upstream fix: huggingface/lerobot#4314; drop this once a release has it.
-    """
-    from lerobot.datasets.dataset_reader import DatasetReader
-
-    reader, view_reader = dataset.reader, _column_view_reader()
-    if type(reader) is DatasetReader:
-        reader.__class__ = view_reader
-    elif not isinstance(reader, view_reader):
-        raise TypeError(f"column_views: unexpected LeRobot reader {type(reader).__name__}")
-
-
-def _column_view_reader() -> type:
-    """The reader class, built on first use so that importing this module does not import lerobot."""
-    if "ColumnViewReader" in globals():
-        return globals()["ColumnViewReader"]
-    import torch
-    from lerobot.datasets.dataset_reader import DatasetReader
-
-    class ColumnViewReader(DatasetReader):
-        """LeRobot's ``DatasetReader`` whose delta-window queries go through per-column views."""
-
-        def _query_hf_dataset(self, query_indices: dict[str, list[int]]) -> dict:
-            cached = getattr(self, "_column_views", None)
-            if cached is None or cached[0] is not self.hf_dataset:  # (re)loaded: views of the new one
-                cached = self._column_views = (self.hf_dataset, {})
-            views = cached[1]
-            result: dict = {}
-            for key, q_idx in query_indices.items():
-                if key in self._meta.video_keys:
-                    continue
-                rows = q_idx if self._absolute_to_relative_idx is None else [self._absolute_to_relative_idx[i] for i in q_idx]
-                if key not in views:
-                    views[key] = self.hf_dataset.select_columns(key)
-                result[key] = torch.stack(views[key][rows][key])
-            return result
-
-    ColumnViewReader.__qualname__ = "ColumnViewReader"
-    globals()["ColumnViewReader"] = ColumnViewReader
-    return ColumnViewReader
-
-
-def __getattr__(name: str):
-    # pickling a reader (DataLoader workers under spawn) finds its class by name
-    if name == "ColumnViewReader":
-        return _column_view_reader()
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 def last_checkpoint(output_dir: Path) -> Path | None:
     """The output folder's last complete checkpoint (LeRobot's ``checkpoints/last`` link)."""
     last = Path(output_dir) / CHECKPOINTS / LAST
@@ -205,6 +150,8 @@ def train(
     from lerobot.utils.logging_utils import AverageMeter, MetricsTracker
     from lerobot.utils.random_utils import set_seed
     from lerobot.utils.utils import cycle
+
+    from touch2robot.policy.reader import column_views
 
     output_dir = Path(output_dir)
     pipeline = pipeline_config(dataset_root, repo_id, cfg, output_dir, steps)
