@@ -278,6 +278,12 @@ policy_eval = pa.schema(
         pa.field("ci_low", pa.float32(), nullable=False),  # 95 % Wilson interval of the success rate
         pa.field("ci_high", pa.float32(), nullable=False),
         pa.field("mean_progress", pa.float32(), nullable=False),  # task progress in [0, 1] at episode end
+        # open-loop fit on the policy's own dataset (touch2robot.policy.evaluate.ActionFit): mean
+        # |executed - recorded action| over sampled frames, and the same for holding the frame's state
+        pa.field("fit_joint_err_rad", pa.float32(), nullable=False),
+        pa.field("fit_wrist_err_mm", pa.float32(), nullable=False),
+        pa.field("hold_joint_err_rad", pa.float32(), nullable=False),
+        pa.field("hold_wrist_err_mm", pa.float32(), nullable=False),
         pa.field("episode_steps", pa.int32(), nullable=False),  # control steps per episode (20 Hz)
         pa.field("replans", pa.int32(), nullable=False),  # policy inferences per episode
         pa.field("mlflow_run", pa.string(), nullable=False),  # run of stage "policy" with curves, videos, policy

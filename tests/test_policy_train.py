@@ -14,7 +14,7 @@ from conftest import scripted_rollout_rows
 from touch2robot import lake as lake_io
 from touch2robot.config import load_profile
 from touch2robot.policy.dataset import build_dataset, read_rollouts, sources
-from touch2robot.policy.evaluate import episode_starts, load_policy, rollout_policy
+from touch2robot.policy.evaluate import action_fit, episode_starts, load_policy, rollout_policy
 from touch2robot.policy.train import last_checkpoint, train
 from touch2robot.sim.config import SimConfig
 from touch2robot.sim.scene import build_scene
@@ -76,6 +76,30 @@ def test_closed_loop_executes_16_predicted_actions_then_replans(trained) -> None
     assert out.videos[0].shape == (40, CONFIG.image_size, 2 * CONFIG.image_size, 3)
 
 
+def test_action_fit_compares_the_executed_steps_with_the_recorded_actions(trained) -> None:
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    summary, _, result, _, _ = trained
+    policy, pre, post = load_policy(Path(result.policy_dir), "cpu")
+    fit = action_fit(policy, pre, post, Path(summary.root), summary.repo_id, frames=10_000)
+    assert fit.frames == summary.frames  # every frame, once
+    # holding still, computed here from the plain frames: the executed steps are the frame's own
+    # and the next n_action_steps - 1 of its episode, none past the episode's end
+    ds = LeRobotDataset(summary.repo_id, root=summary.root)
+    joint, wrist = [], []
+    for ep in range(ds.num_episodes):
+        frames = [ds[i] for i in range(len(ds)) if int(ds[i]["episode_index"]) == ep]
+        state = np.stack([f["observation.state"].numpy() for f in frames])
+        action = np.stack([f["action"].numpy() for f in frames])
+        for t in range(len(frames)):
+            diff = np.abs(action[t : t + CONFIG.n_action_steps] - state[t])
+            joint.append(diff[:, :16])
+            wrist.append(diff[:, 16:19])
+    assert fit.hold_joint_err_rad == pytest.approx(np.concatenate(joint).mean(), rel=1e-4)
+    assert fit.hold_wrist_err_mm == pytest.approx(1000 * np.concatenate(wrist).mean(), rel=1e-4)
+    assert 0 < fit.joint_err_rad < np.inf and 0 < fit.wrist_err_mm < np.inf
+
+
 @pytest.mark.slow
 def test_policy_flow_fills_policy_eval_and_mlflow(tmp_path: Path) -> None:
     import mlflow
@@ -89,11 +113,12 @@ def test_policy_flow_fills_policy_eval_and_mlflow(tmp_path: Path) -> None:
     lake_io.write_rows(layout.lake, "rollouts", "teacher-pick", scripted_rollout_rows("pick", "dexmachina", 2, 24), partition={"method": "dexmachina"})
     rows = policy(profile="smoke", data=str(layout.root), methods=["contrack"])  # the filter leaves one of the two
     assert [(r["task"], r["method"], r["origin"], r["episodes"], r["dataset_episodes"]) for r in rows] == [("pick", "contrack", "teacher", CONFIG.eval_episodes, 2)]
-    table = catalog.query(layout, "SELECT task, method, episodes, ci_low <= success_rate AND success_rate <= ci_high AS inside FROM policy_eval")
-    assert table.to_pylist() == [{"task": "pick", "method": "contrack", "episodes": CONFIG.eval_episodes, "inside": True}]
+    table = catalog.query(layout, "SELECT task, method, episodes, ci_low <= success_rate AND success_rate <= ci_high AS inside, "
+                                  "fit_wrist_err_mm > 0 AND hold_wrist_err_mm > 0 AS fitted FROM policy_eval")  # fmt: skip
+    assert table.to_pylist() == [{"task": "pick", "method": "contrack", "episodes": CONFIG.eval_episodes, "inside": True, "fitted": True}]
     tracking.experiment(layout, "policy")
     run = mlflow.get_run(rows[0]["mlflow_run"])
-    assert "train/loss" in run.data.metrics and "eval/success_rate" in run.data.metrics
+    assert {"train/loss", "eval/success_rate", "fit/wrist_err_mm", "fit/hold_wrist_err_mm"} <= set(run.data.metrics)
     assert run.data.tags["pretrained_backbone"].startswith("none")
     artefacts = {a.path for a in mlflow.MlflowClient().list_artifacts(run.info.run_id)}
     assert {"policy", "videos"} <= artefacts

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 
-from touch2robot.policy.config import PolicyConfig
-from touch2robot.policy.dataset import CameraRenderer, Rollout, observation_state, reset_to_first_rows
+from touch2robot.policy.config import VIDEO_BACKEND, PolicyConfig
+from touch2robot.policy.dataset import FPS, CameraRenderer, Rollout, observation_state, reset_to_first_rows
 from touch2robot.sim.config import SimConfig
 from touch2robot.sim.env import BatchEnv
 from touch2robot.sim.rsl_env import episode_steps
@@ -156,11 +156,63 @@ def _predict(policy, preprocessor, postprocessor, history: list[dict[str, np.nda
         if key.startswith("observation.images."):
             stacked = stacked.permute(0, 1, 4, 2, 3).float() / 255.0  # (N, n_obs, 3, H, W) in [0, 1], as the dataset gives
         batch[key] = stacked
+    return _predict_batch(policy, preprocessor, postprocessor, batch)
+
+
+def _predict_batch(policy, preprocessor, postprocessor, batch: dict) -> np.ndarray:
+    """(N, n_action_steps, 23) actions from observation windows as the dataset gives them."""
+    import torch
+
     batch = preprocessor(batch)
     with torch.no_grad():
         policy.reset()  # empty queues: predict from this window, not from cached observations
         actions = policy.predict_action_chunk(batch)  # normalised (N, n_action_steps, 23)
     return postprocessor(actions).cpu().numpy()
+
+
+@dataclass(frozen=True)
+class ActionFit:
+    """Open-loop fit of a policy to its own dataset: for sampled frames, the actions it would
+    execute (``n_action_steps`` from the frame on) against the recorded ones, as mean absolute
+    errors; and the same for *holding* the frame's state (joint positions, wrist pose) as the
+    command. A policy no better than holding still has not learned its demonstrations, whatever
+    its loss says: closed-loop failures can then be put on training, not on the task."""
+
+    frames: int
+    joint_err_rad: float
+    wrist_err_mm: float  # wrist position
+    hold_joint_err_rad: float
+    hold_wrist_err_mm: float
+
+
+def action_fit(policy, preprocessor, postprocessor, dataset_root: Path, repo_id: str, frames: int = 64, seed: int = 0, batch_size: int = 16) -> ActionFit:
+    """``ActionFit`` of ``policy`` on ``frames`` frames (seeded, without replacement) of a LeRobot dataset;
+    action steps past an episode's end (LeRobot's padding) are left out."""
+    import torch
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    c = policy.config
+    keys = (*c.image_features, "observation.state", *(["observation.environment_state"] if c.env_state_feature else []))
+    windows = {**{k: [i / FPS for i in c.observation_delta_indices] for k in keys}, "action": [i / FPS for i in c.action_delta_indices]}
+    dataset = LeRobotDataset(repo_id, root=dataset_root, delta_timestamps=windows, video_backend=VIDEO_BACKEND)
+    rng = np.random.default_rng(seed)
+    chosen = np.sort(rng.choice(len(dataset), min(frames, len(dataset)), replace=False))
+    now = c.n_obs_steps - 1  # the frame's own step in the action window
+    executed = slice(now, now + c.n_action_steps)
+    errors, holds, valid = [], [], []
+    for part in np.array_split(chosen, max(1, -(-len(chosen) // batch_size))):
+        items = [dataset[int(i)] for i in part]
+        stacked = {k: torch.stack([it[k] for it in items]) for k in (*keys, "action", "action_is_pad")}
+        predicted = _predict_batch(policy, preprocessor, postprocessor, {k: stacked[k] for k in keys})
+        recorded = stacked["action"][:, executed].numpy()
+        state = stacked["observation.state"][:, -1].numpy()[:, None]  # (k, 1, 23): the frame's state
+        errors.append(np.abs(predicted - recorded))
+        holds.append(np.abs(state - recorded))
+        valid.append(~stacked["action_is_pad"][:, executed].numpy())
+    err, hold, ok = np.concatenate(errors), np.concatenate(holds), np.concatenate(valid)
+    joint = lambda e: float(e[ok][:, :16].mean())  # noqa: E731
+    wrist = lambda e: float(1000.0 * e[ok][:, 16:19].mean())  # noqa: E731
+    return ActionFit(len(chosen), joint(err), wrist(err), joint(hold), wrist(hold))
 
 
 def write_video(frames: np.ndarray, path: Path, fps: int = 20) -> Path:
