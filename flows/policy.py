@@ -36,6 +36,7 @@ def policy(profile: str = "smoke", data: str | None = None, tasks: list[str] | N
     for r in rows:
         print(f"policy {r['task']:>7} x {r['method']:<16} ({r['origin']}): success {r['successes']}/{r['episodes']} "
               f"= {r['success_rate']:.2f} [{r['ci_low']:.2f}, {r['ci_high']:.2f}], progress {r['mean_progress']:.2f}, "
+              f"demonstrations replayed {r['replay_successes']}/{r['episodes']}, "
               f"open-loop error {r['fit_joint_err_rad']:.3f} rad / {r['fit_wrist_err_mm']:.1f} mm (holding still: "
               f"{r['hold_joint_err_rad']:.3f} / {r['hold_wrist_err_mm']:.1f})")  # fmt: skip
     return rows

@@ -278,6 +278,9 @@ policy_eval = pa.schema(
         pa.field("ci_low", pa.float32(), nullable=False),  # 95 % Wilson interval of the success rate
         pa.field("ci_high", pa.float32(), nullable=False),
         pa.field("mean_progress", pa.float32(), nullable=False),  # task progress in [0, 1] at episode end
+        # the ceiling: each episode's demonstration commands replayed open loop from the same (jittered) start
+        pa.field("replay_successes", pa.int32(), nullable=False),
+        pa.field("replay_success_rate", pa.float32(), nullable=False),
         # open-loop fit on the policy's own dataset (touch2robot.policy.evaluate.ActionFit): mean
         # |executed - recorded action| over sampled frames, and the same for holding the frame's state
         pa.field("fit_joint_err_rad", pa.float32(), nullable=False),

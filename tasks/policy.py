@@ -84,7 +84,7 @@ def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: s
     import pyarrow as pa
 
     from touch2robot.policy.dataset import read_rollouts
-    from touch2robot.policy.evaluate import action_fit, episode_starts, load_policy, rollout_policy, write_video
+    from touch2robot.policy.evaluate import action_fit, episode_starts, load_policy, replay_demonstrations, rollout_policy, write_video
     from touch2robot.sim.scene import build_scene
 
     layout = DataLayout.from_env(data)
@@ -94,12 +94,14 @@ def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: s
     policy, pre, post = load_policy(Path(trained["policy_dir"]), config.device)
     result = rollout_policy(policy, pre, post, scene, sim, starts, config, video_episodes=config.video_episodes)
     fit = action_fit(policy, pre, post, Path(trained["root"]), trained["repo_id"], seed=config.eval_seed)
+    replay = replay_demonstrations(scene, sim, starts, config, steps=result.steps)
     low, high = result.wilson
     row = {
         "task": trained["task"], "method": trained["method"], "origin": trained["origin"], "profile": profile,
         "dataset_episodes": trained["episodes"], "dataset_frames": trained["frames"], "train_steps": trained["steps"],
         "final_loss": trained["last_loss"], "episodes": len(result.success), "successes": int(result.success.sum()),
         "success_rate": result.success_rate, "ci_low": low, "ci_high": high, "mean_progress": float(result.progress.mean()),
+        "replay_successes": int(replay.success.sum()), "replay_success_rate": replay.success_rate,
         "fit_joint_err_rad": fit.joint_err_rad, "fit_wrist_err_mm": fit.wrist_err_mm,
         "hold_joint_err_rad": fit.hold_joint_err_rad, "hold_wrist_err_mm": fit.hold_wrist_err_mm,
         "episode_steps": result.steps, "replans": result.replans, "mlflow_run": trained["mlflow_run"],
@@ -108,6 +110,7 @@ def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: s
     tracking.experiment(layout, "policy")
     with mlflow.start_run(run_id=trained["mlflow_run"]):
         mlflow.log_metrics({"eval/success_rate": row["success_rate"], "eval/ci_low": low, "eval/ci_high": high, "eval/mean_progress": row["mean_progress"],
+                            "eval/replay_success_rate": row["replay_success_rate"],
                             **{f"fit/{k}": v for k, v in fit.__dict__.items() if k != "frames"}})  # fmt: skip
         with tempfile.TemporaryDirectory() as tmp:
             for i, frames in enumerate(result.videos):

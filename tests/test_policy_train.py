@@ -14,7 +14,7 @@ from conftest import scripted_rollout_rows
 from touch2robot import lake as lake_io
 from touch2robot.config import load_profile
 from touch2robot.policy.dataset import build_dataset, read_rollouts, sources
-from touch2robot.policy.evaluate import action_fit, episode_starts, load_policy, rollout_policy
+from touch2robot.policy.evaluate import action_fit, episode_starts, load_policy, replay_demonstrations, rollout_policy
 from touch2robot.policy.train import last_checkpoint, train
 from touch2robot.sim.config import SimConfig
 from touch2robot.sim.scene import build_scene
@@ -100,6 +100,23 @@ def test_action_fit_compares_the_executed_steps_with_the_recorded_actions(traine
     assert 0 < fit.joint_err_rad < np.inf and 0 < fit.wrist_err_mm < np.inf
 
 
+def test_replayed_demonstrations_reproduce_their_rollouts(tmp_path: Path) -> None:
+    import pyarrow.parquet as pq
+
+    # scripted drawer pulls: each copy opens the drawer by its own amount, so progress tells them apart
+    path = lake_io.write_rows(tmp_path / "lake", "rollouts", "teacher-drawer", scripted_rollout_rows("drawer", "contrack", 4, 30), partition={"method": "contrack"})
+    rollouts = read_rollouts(path)
+    sim = SimConfig(threads=1)
+    scene = build_scene("drawer", sim)
+    starts = episode_starts(scene, rollouts, 6, seed=0, object_noise_m=CONFIG.object_noise_m)
+    steps = len(rollouts[0]) - 1  # the state after T-1 commands is the rollout's last row
+    out = replay_demonstrations(scene, sim, starts, CONFIG.model_copy(update={"eval_batch": 4}), steps=steps)
+    last = {r["rollout_id"]: r["progress"] for r in pq.read_table(path, columns=["rollout_id", "step", "progress"]).to_pylist() if r["step"] == steps}
+    assert len(set(last.values())) == 4 and len(set(starts.source)) > 1
+    assert out.steps == steps and out.replans == 0
+    np.testing.assert_allclose(out.progress, [last[i] for i in starts.source], atol=1e-9)
+
+
 @pytest.mark.slow
 def test_policy_flow_fills_policy_eval_and_mlflow(tmp_path: Path) -> None:
     import mlflow
@@ -114,8 +131,8 @@ def test_policy_flow_fills_policy_eval_and_mlflow(tmp_path: Path) -> None:
     rows = policy(profile="smoke", data=str(layout.root), methods=["contrack"])  # the filter leaves one of the two
     assert [(r["task"], r["method"], r["origin"], r["episodes"], r["dataset_episodes"]) for r in rows] == [("pick", "contrack", "teacher", CONFIG.eval_episodes, 2)]
     table = catalog.query(layout, "SELECT task, method, episodes, ci_low <= success_rate AND success_rate <= ci_high AS inside, "
-                                  "fit_wrist_err_mm > 0 AND hold_wrist_err_mm > 0 AS fitted FROM policy_eval")  # fmt: skip
-    assert table.to_pylist() == [{"task": "pick", "method": "contrack", "episodes": CONFIG.eval_episodes, "inside": True, "fitted": True}]
+                                  "fit_wrist_err_mm > 0 AND hold_wrist_err_mm > 0 AS fitted, replay_successes BETWEEN 0 AND episodes AS replayed FROM policy_eval")  # fmt: skip
+    assert table.to_pylist() == [{"task": "pick", "method": "contrack", "episodes": CONFIG.eval_episodes, "inside": True, "fitted": True, "replayed": True}]
     tracking.experiment(layout, "policy")
     run = mlflow.get_run(rows[0]["mlflow_run"])
     assert {"train/loss", "eval/success_rate", "fit/wrist_err_mm", "fit/hold_wrist_err_mm"} <= set(run.data.metrics)

@@ -177,9 +177,10 @@ def policy(
     _check_profile(profile)
     layout = _layout(data)
     rows = _run_flow("flows.policy:policy", profile=profile, data=str(layout.root), tasks=task or None, methods=method or None)
-    table = Table("task", "method", "origin", "success", "95% CI", "progress", "open-loop error (rad / mm)", "holding still")
+    table = Table("task", "method", "origin", "success", "95% CI", "progress", "demonstrations replayed", "open-loop error (rad / mm)", "holding still")
     for r in rows:
         table.add_row(r["task"], r["method"], r["origin"], f"{r['successes']}/{r['episodes']}", f"[{r['ci_low']:.2f}, {r['ci_high']:.2f}]", f"{r['mean_progress']:.2f}",
+                      f"{r['replay_successes']}/{r['episodes']}",
                       f"{r['fit_joint_err_rad']:.3f} / {r['fit_wrist_err_mm']:.1f}", f"{r['hold_joint_err_rad']:.3f} / {r['hold_wrist_err_mm']:.1f}")  # fmt: skip
     console.print(table)
 

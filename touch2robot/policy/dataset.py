@@ -196,6 +196,14 @@ def reset_to_first_rows(env: BatchEnv, rollouts: list[Rollout], object_pose: np.
                    first("object_pose") if object_pose is None else object_pose, first("drawer_opening"))  # fmt: skip
 
 
+def recorded_commands(rollouts: list[Rollout], t: int) -> tuple[np.ndarray, np.ndarray]:
+    """(joint targets (N, 16), wrist poses (N, 7)) the rollouts commanded at step ``t``; a rollout
+    that has ended repeats its last command."""
+    targets = np.stack([r.joint_target[min(t, len(r) - 1)] for r in rollouts])
+    wrist = np.stack([r.wrist_pose[min(t, len(r) - 1)] for r in rollouts])
+    return targets, wrist
+
+
 def observation_state(env: BatchEnv) -> np.ndarray:
     """(N, 23) ``observation.state``: joint positions and the wrist free joint's pose."""
     return np.concatenate([env.hand_qpos, env.wrist_pose], axis=1)
@@ -330,8 +338,7 @@ def _replay(batch: list[Rollout], scene: Scene, sim: SimConfig, renderer: Camera
             errors.append(np.abs(env.hand_qpos[live] - recorded).max(axis=1))
             images = renderer.render(env, live)
             state, force = observation_state(env), env.region_force
-            targets = np.stack([r.joint_target[min(t, len(r) - 1)] for r in batch])
-            wrist = np.stack([r.wrist_pose[min(t, len(r) - 1)] for r in batch])
+            targets, wrist = recorded_commands(batch, t)
             for k, i in enumerate(live):
                 ep = episodes[i]
                 for cam, key in zip(renderer.cameras, cams):

@@ -6,6 +6,10 @@ control steps the policy sees the last ``n_obs_steps`` observations (the first o
 start, as LeRobot does), predicts ``horizon`` actions and the ``n_action_steps`` from the current
 step on are executed (Table IX: 24 predicted, 16 executed, then replan). Success is the task's
 criterion at the episode's end; a Wilson interval bounds the success rate.
+
+Two references put a success rate in context: the demonstrations' own commands replayed open loop
+from the same starts (``replay_demonstrations``: what exact imitation would reach, given the start
+jitter), and the policy's open-loop fit to its dataset against holding still (``action_fit``).
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from touch2robot.policy.config import VIDEO_BACKEND, PolicyConfig
-from touch2robot.policy.dataset import FPS, CameraRenderer, Rollout, observation_state, reset_to_first_rows
+from touch2robot.policy.dataset import FPS, CameraRenderer, Rollout, observation_state, recorded_commands, reset_to_first_rows
 from touch2robot.sim.config import SimConfig
 from touch2robot.sim.env import BatchEnv
 from touch2robot.sim.rsl_env import episode_steps
@@ -144,6 +148,28 @@ def rollout_policy(policy, preprocessor, postprocessor, scene: Scene, sim: SimCo
     finally:
         renderer.close()
     return EvalResult(np.concatenate(successes), np.concatenate(progress), horizon, replans, videos)
+
+
+def replay_demonstrations(scene: Scene, sim: SimConfig, starts: EpisodeStarts, cfg: PolicyConfig, steps: int | None = None) -> EvalResult:
+    """The ceiling of a policy that reproduces its demonstrations exactly: each start's rollout
+    commands (the dataset's actions) executed open loop from that start, object jitter included,
+    for the same episode length (a rollout that has ended holds its last command)."""
+    successes, progress = [], []
+    for first in range(0, len(starts.rollouts), cfg.eval_batch):
+        ids = slice(first, first + cfg.eval_batch)
+        batch = starts.rollouts[ids]
+        env = BatchEnv(scene, sim, n_envs=len(batch))
+        try:
+            reset_to_first_rows(env, batch, starts.object_pose[ids])
+            horizon = steps or episode_steps(env)
+            for t in range(horizon):
+                targets, wrist = recorded_commands(batch, t)
+                env.step(targets, wrist[:, :3], wrist[:, 3:])
+            successes.append(env.success.copy())
+            progress.append(env.progress.copy())
+        finally:
+            env.close()
+    return EvalResult(np.concatenate(successes), np.concatenate(progress), horizon, replans=0)
 
 
 def _predict(policy, preprocessor, postprocessor, history: list[dict[str, np.ndarray]]) -> np.ndarray:
