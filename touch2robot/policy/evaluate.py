@@ -110,7 +110,17 @@ def rollout_policy(policy, preprocessor, postprocessor, scene: Scene, sim: SimCo
                    video_episodes: int = 0, steps: int | None = None) -> EvalResult:  # fmt: skip
     """Run the episodes of ``starts`` closed loop, ``cfg.eval_batch`` at a time as BatchEnv copies.
     ``steps`` defaults to the task's episode length. The first ``video_episodes`` are recorded
-    (both cameras side by side)."""
+    (both cameras side by side). The diffusion noise is seeded with ``cfg.eval_seed``, so a re-run
+    gives the same episodes (on the same hardware)."""
+    import torch
+
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(cfg.eval_seed)
+        return _rollout_policy(policy, preprocessor, postprocessor, scene, sim, starts, cfg, video_episodes, steps)
+
+
+def _rollout_policy(policy, preprocessor, postprocessor, scene: Scene, sim: SimConfig, starts: EpisodeStarts, cfg: PolicyConfig,
+                    video_episodes: int, steps: int | None) -> EvalResult:  # fmt: skip
     n_obs, n_act = policy.config.n_obs_steps, policy.config.n_action_steps
     renderer = CameraRenderer(scene, tuple(k.removeprefix("observation.images.") for k in policy.config.image_features), cfg.image_size)
     successes, progress, videos = [], [], []
@@ -212,8 +222,17 @@ class ActionFit:
 
 
 def action_fit(policy, preprocessor, postprocessor, dataset_root: Path, repo_id: str, frames: int = 64, seed: int = 0, batch_size: int = 16) -> ActionFit:
-    """``ActionFit`` of ``policy`` on ``frames`` frames (seeded, without replacement) of a LeRobot dataset;
-    action steps past an episode's end (LeRobot's padding) are left out."""
+    """``ActionFit`` of ``policy`` on ``frames`` frames of a LeRobot dataset (drawn without
+    replacement; frames and diffusion noise seeded by ``seed``); action steps past an episode's end
+    (LeRobot's padding) are left out."""
+    import torch
+
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        return _action_fit(policy, preprocessor, postprocessor, dataset_root, repo_id, frames, seed, batch_size)
+
+
+def _action_fit(policy, preprocessor, postprocessor, dataset_root: Path, repo_id: str, frames: int, seed: int, batch_size: int) -> ActionFit:
     import torch
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
