@@ -53,6 +53,21 @@ def test_training_resumes_from_the_last_checkpoint(trained) -> None:
     assert np.isfinite(more.last_loss)
 
 
+def test_a_time_budget_ends_training_early_with_a_checkpoint_to_resume_from(trained) -> None:
+    summary, _, _, _, base = trained
+    total = 10 * CONFIG.steps
+    cut = train(Path(summary.root), summary.repo_id, CONFIG, base / "timed", steps=total, max_seconds=0.0)
+    assert cut.steps == 1 and np.isfinite(cut.last_loss)
+    assert last_checkpoint(base / "timed") == Path(cut.policy_dir).parent
+    logs: list[tuple[int, dict]] = []
+    more = train(Path(summary.root), summary.repo_id, CONFIG, base / "timed", steps=total, on_log=lambda s, m: logs.append((s, m)), max_seconds=0.0)
+    assert more.resumed_from == 1 and more.steps == 2
+    # the learning rate follows the schedule of ``total`` updates: right after the smoke profile's
+    # 2 warm-up updates it is at its peak (a schedule of 2 updates would have decayed it to 0)
+    assert CONFIG.scheduler_warmup_steps == 2 and [s for s, _ in logs] == [2]
+    assert logs[0][1]["lr"] == pytest.approx(CONFIG.lr)
+
+
 def test_closed_loop_executes_16_predicted_actions_then_replans(trained) -> None:
     _, rollouts, result, _, _ = trained
     sim = SimConfig(threads=1)
