@@ -51,20 +51,19 @@ def main() -> None:
     import torch
 
     from touch2robot.config import load_profile
-    from touch2robot.policy.dataset import build_dataset, common_demonstrations, read_rollouts, sources
-    from touch2robot.policy.evaluate import action_fit, episode_starts, load_policy, replay_demonstrations, rollout_policy
+    from touch2robot.policy.dataset import build_dataset, chosen_sources, read_rollouts
+    from touch2robot.policy.evaluate import evaluate
     from touch2robot.policy.train import train
     from touch2robot.sim.scene import build_scene
 
     cfg = load_profile(args.profile).policy.model_copy(update={"eval_episodes": args.eval_episodes})
     sim = load_profile(args.sim_profile).teacher.sim
     lake = args.data / "lake"
-    every = sources(lake, tuple(cfg.origins))
-    chosen = [s for s in every if s.task == args.task and s.method == args.method]
-    if not chosen:
-        raise SystemExit(f"{lake / 'rollouts'}: no rollouts of {args.task} x {args.method} (have {[(s.task, s.method) for s in every]})")
-    src = chosen[0]
-    references = common_demonstrations([s.path for s in every if s.task == args.task]) if cfg.same_demonstrations else None
+    every = chosen_sources(lake, cfg, [args.task])
+    chosen = [(s, refs) for s, refs in every if s.method == args.method]
+    if not chosen or chosen[0][1] == []:
+        raise SystemExit(f"{lake / 'rollouts'}: no rollouts of {args.task} x {args.method} to learn from (have {[s.method for s, _ in every]})")
+    src, references = chosen[0]
     rollouts = read_rollouts(src.path, cfg.max_rollouts, references)
     scene = build_scene(args.task, sim)
     device = cfg.device or ("cuda" if torch.cuda.is_available() else "cpu")
@@ -93,11 +92,8 @@ def main() -> None:
     }  # fmt: skip
 
     start = time.perf_counter()
-    policy, pre, post = load_policy(Path(result.policy_dir), cfg.device)
-    starts = episode_starts(scene, rollouts, cfg.eval_episodes, cfg.eval_seed, cfg.object_noise_m)
-    closed = rollout_policy(policy, pre, post, scene, sim, starts, cfg)
-    fit = action_fit(policy, pre, post, Path(ds.root), ds.repo_id, seed=cfg.eval_seed)
-    replay = replay_demonstrations(scene, sim, starts, cfg, steps=closed.steps)
+    outcome = evaluate(Path(result.policy_dir), Path(ds.root), ds.repo_id, scene, sim, rollouts, cfg)
+    closed, fit, replay = outcome.closed_loop, outcome.fit, outcome.replay
     low, high = closed.wilson
     summary["eval"] = {
         "episodes": len(closed.success), "successes": int(closed.success.sum()), "ci_low": low, "ci_high": high,

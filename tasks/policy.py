@@ -84,17 +84,14 @@ def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: s
     import pyarrow as pa
 
     from touch2robot.policy.dataset import read_rollouts
-    from touch2robot.policy.evaluate import action_fit, episode_starts, load_policy, replay_demonstrations, rollout_policy, write_video
+    from touch2robot.policy.evaluate import evaluate, write_video
     from touch2robot.sim.scene import build_scene
 
     layout = DataLayout.from_env(data)
     scene = build_scene(trained["task"], sim)
     rollouts = read_rollouts(Path(trained["path"]), config.max_rollouts, trained["references"])
-    starts = episode_starts(scene, rollouts, config.eval_episodes, config.eval_seed, config.object_noise_m)
-    policy, pre, post = load_policy(Path(trained["policy_dir"]), config.device)
-    result = rollout_policy(policy, pre, post, scene, sim, starts, config, video_episodes=config.video_episodes)
-    fit = action_fit(policy, pre, post, Path(trained["root"]), trained["repo_id"], seed=config.eval_seed)
-    replay = replay_demonstrations(scene, sim, starts, config, steps=result.steps)
+    outcome = evaluate(Path(trained["policy_dir"]), Path(trained["root"]), trained["repo_id"], scene, sim, rollouts, config, config.video_episodes)
+    result, fit, replay = outcome.closed_loop, outcome.fit, outcome.replay
     low, high = result.wilson
     row = {
         "task": trained["task"], "method": trained["method"], "origin": trained["origin"], "profile": profile,
@@ -133,17 +130,11 @@ def rollout_sources(data: str, config: PolicyConfig, tasks: list[str] | None = N
     """The rollouts file of every task x method (most preferred of ``config.origins``, narrowed to
     ``tasks`` / ``methods``), with its content hash and, with ``config.same_demonstrations``, the
     demonstrations all of the task's methods follow (``references``; None = every rollout)."""
-    from touch2robot.policy.dataset import common_demonstrations, sources
+    from touch2robot.policy.dataset import chosen_sources
 
     layout = DataLayout.from_env(data)
-    chosen = [s for s in sources(layout.lake, tuple(config.origins)) if (not tasks or s.task in tasks) and (not methods or s.method in methods)]
-    shared = {}
-    if config.same_demonstrations:
-        for task_name in {s.task for s in chosen}:
-            shared[task_name] = common_demonstrations([s.path for s in chosen if s.task == task_name])
     out = []
-    for s in chosen:
-        references = shared.get(s.task)
+    for s, references in chosen_sources(layout.lake, config, tasks, methods):
         if references == []:
             get_run_logger().warning("policy: the methods of %s follow no demonstration in common; %s is skipped", s.task, s.method)
             continue

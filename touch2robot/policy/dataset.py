@@ -140,6 +140,18 @@ def common_demonstrations(paths: list[Path]) -> list[str]:
     return sorted(set.intersection(*sets)) if sets else []
 
 
+def chosen_sources(lake: Path, cfg: PolicyConfig, tasks: list[str] | None = None, methods: list[str] | None = None) -> list[tuple[Source, list[str] | None]]:
+    """Every task x method's rollouts file (most preferred of ``cfg.origins``, narrowed to ``tasks``
+    / ``methods``) with, under ``cfg.same_demonstrations``, the demonstrations every chosen method of
+    its task follows (None = every rollout; [] = none in common, so nothing to compare)."""
+    chosen = [s for s in sources(lake, tuple(cfg.origins)) if (not tasks or s.task in tasks) and (not methods or s.method in methods)]
+    shared: dict[str, list[str]] = {}
+    if cfg.same_demonstrations:
+        for task_name in {s.task for s in chosen}:
+            shared[task_name] = common_demonstrations([s.path for s in chosen if s.task == task_name])
+    return [(s, shared.get(s.task)) for s in chosen]
+
+
 def read_rollouts(path: Path, limit: int | None = None, references: list[str] | None = None) -> list[Rollout]:
     """The rollouts of one file, by rollout id, each sorted by step; steps must run 0, 1, 2, ...
     (row 0 is the reset state). With ``references``: only the first rollout following each of

@@ -260,6 +260,27 @@ def _action_fit(policy, preprocessor, postprocessor, dataset_root: Path, repo_id
     return ActionFit(len(chosen), joint(err), wrist(err), joint(hold), wrist(hold))
 
 
+@dataclass(frozen=True)
+class PolicyEvaluation:
+    """A trained policy's closed-loop episodes, its open-loop fit, and its demonstrations replayed
+    from the same starts (the ceiling of exact imitation)."""
+
+    closed_loop: EvalResult
+    fit: ActionFit
+    replay: EvalResult
+
+
+def evaluate(policy_dir: Path, dataset_root: Path, repo_id: str, scene: Scene, sim: SimConfig, rollouts: list[Rollout], cfg: PolicyConfig,
+             video_episodes: int = 0) -> PolicyEvaluation:  # fmt: skip
+    """``cfg.eval_episodes`` seeded episodes of the policy in ``policy_dir`` started from
+    ``rollouts``' reset rows, its fit to its dataset, and the replay ceiling from the same starts."""
+    starts = episode_starts(scene, rollouts, cfg.eval_episodes, cfg.eval_seed, cfg.object_noise_m)
+    policy, pre, post = load_policy(Path(policy_dir), cfg.device)
+    closed = rollout_policy(policy, pre, post, scene, sim, starts, cfg, video_episodes=video_episodes)
+    fit = action_fit(policy, pre, post, Path(dataset_root), repo_id, seed=cfg.eval_seed)
+    return PolicyEvaluation(closed, fit, replay_demonstrations(scene, sim, starts, cfg, steps=closed.steps))
+
+
 def write_video(frames: np.ndarray, path: Path, fps: int = 20) -> Path:
     """(T, H, W, 3) uint8 frames -> H.264 MP4 (PyAV)."""
     import av
