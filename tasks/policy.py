@@ -71,7 +71,8 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -
         mlflow.log_params({**settings, "dataset_root": dataset["root"], "dataset_episodes": dataset["episodes"], "dataset_frames": dataset["frames"]})
         mlflow.log_metrics({"dataset/render_fps": dataset["render_fps"], "dataset/replay_max_joint_error_rad": dataset["replay_max_joint_error_rad"]})
         result = train(Path(dataset["root"]), dataset["repo_id"], config, out / "lerobot", on_log=tracking.step_logger(run.info.run_id, "train/"))
-        mlflow.log_metrics({"train/samples_per_s_total": result.samples_per_s})
+        if result.steps > result.resumed_from:  # a finished folder resumes with no update to time
+            mlflow.log_metrics({"train/samples_per_s_total": result.samples_per_s})
         mlflow.log_artifacts(result.policy_dir, "policy")
     return {**dataset, **result.__dict__, "mlflow_run": run.info.run_id}
 

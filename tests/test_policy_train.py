@@ -66,6 +66,10 @@ def test_a_time_budget_ends_training_early_with_a_checkpoint_to_resume_from(trai
     # 2 warm-up updates it is at its peak (a schedule of 2 updates would have decayed it to 0)
     assert CONFIG.scheduler_warmup_steps == 2 and [s for s, _ in logs] == [2]
     assert logs[0][1]["lr"] == pytest.approx(CONFIG.lr)
+    # a call on the finished folder does no update and still reports the training's losses
+    again = train(Path(summary.root), summary.repo_id, CONFIG, base / "timed", steps=2)
+    assert (again.resumed_from, again.steps) == (2, 2) and np.isnan(again.samples_per_s)
+    assert (again.first_loss, again.last_loss) == (cut.first_loss, more.last_loss)
 
 
 def test_closed_loop_executes_16_predicted_actions_then_replans(trained) -> None:

@@ -18,6 +18,8 @@ Without it every window row decodes both camera images, a third of a CPU update.
 
 from __future__ import annotations
 
+import json
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -28,6 +30,7 @@ from touch2robot.policy.config import VIDEO_BACKEND, PolicyConfig
 CHECKPOINTS = "checkpoints"
 LAST = "last"
 PRETRAINED = "pretrained_model"
+LOSS_LOG = "loss_log.jsonl"
 
 
 def diffusion_kwargs(cfg: PolicyConfig) -> dict:
@@ -115,6 +118,20 @@ def last_checkpoint(output_dir: Path) -> Path | None:
     return last.resolve() if (last / PRETRAINED).is_dir() and (last / "training_state").is_dir() else None
 
 
+def _loss_log(output_dir: Path, upto_step: int) -> list[dict]:
+    """The logged windows of the training in ``output_dir`` up to ``upto_step`` (the resume point),
+    rewritten without later ones: a crash after the last checkpoint leaves windows that the
+    resumed run logs again."""
+    path = Path(output_dir) / LOSS_LOG
+    if not path.is_file():
+        return []
+    windows = [w for w in map(json.loads, path.read_text().splitlines()) if w["step"] <= upto_step]
+    tmp = path.with_suffix(".tmp")
+    tmp.write_text("".join(json.dumps(w) + "\n" for w in windows))
+    tmp.replace(path)
+    return windows
+
+
 @dataclass(frozen=True)
 class TrainResult:
     """What one ``train`` call did."""
@@ -122,9 +139,9 @@ class TrainResult:
     policy_dir: str  # the final LeRobot pretrained_model folder (config, weights, processors)
     steps: int  # updates done in total
     resumed_from: int  # the step the call started at (0 = fresh)
-    first_loss: float  # mean loss over the call's first logging window
-    last_loss: float  # mean loss over its last logging window
-    samples_per_s: float  # training samples per second over the call (data loading included)
+    first_loss: float  # mean loss over the training's first logging window (from its loss log)
+    last_loss: float  # mean loss over its last logging window, whichever call did it
+    samples_per_s: float  # training samples per second over the call (data loading included); NaN without updates
     seconds: float
 
 
@@ -141,7 +158,9 @@ def train(
     LeRobot dataset for ``steps`` updates in total (default ``cfg.steps``). Every ``cfg.log_freq``
     updates ``on_log(step, {"loss", "lr", "grad_norm", "samples_per_s"})`` gets the window's means.
     ``max_seconds`` ends the call early, checkpointed, once that much time has passed (the learning
-    rate keeps the schedule of ``steps`` updates; a later call resumes there)."""
+    rate keeps the schedule of ``steps`` updates; a later call resumes there). The windows also go
+    to ``output_dir/loss_log.jsonl``, so a call on a finished folder (no updates left) still
+    reports the training's first and last loss."""
     import torch
     from accelerate import Accelerator
     from lerobot.common.train_utils import get_step_checkpoint_dir, load_training_state, save_checkpoint, update_last_checkpoint
@@ -204,7 +223,7 @@ def train(
     meters = {name: AverageMeter(name) for name in ("loss", "grad_norm", "lr", "update_s", "dataloading_s")}
     tracker = MetricsTracker(pipeline.batch_size, dataset.num_frames, dataset.num_episodes, meters, initial_step=step, accelerator=accelerator)
     batches = cycle(loader)
-    windows: list[float] = []
+    windows = _loss_log(output_dir, step)
     window_start = started = time.perf_counter()
     while step < pipeline.steps:
         t0 = time.perf_counter()
@@ -222,7 +241,10 @@ def train(
                 "grad_norm": tracker.grad_norm.avg,
                 "samples_per_s": tracker.loss.count * pipeline.batch_size / (now - window_start),
             }
-            windows.append(figures["loss"])
+            windows.append({"step": step, **figures})
+            output_dir.mkdir(parents=True, exist_ok=True)
+            with open(output_dir / LOSS_LOG, "a") as log:
+                log.write(json.dumps(windows[-1]) + "\n")
             if on_log is not None:
                 on_log(step, figures)
             tracker.reset_averages()
@@ -240,8 +262,8 @@ def train(
         policy_dir=str(final / PRETRAINED),
         steps=step,
         resumed_from=start_step,
-        first_loss=windows[0] if windows else float("nan"),
-        last_loss=windows[-1] if windows else float("nan"),
-        samples_per_s=(step - start_step) * pipeline.batch_size / seconds if seconds else float("nan"),
+        first_loss=windows[0]["loss"] if windows else math.nan,
+        last_loss=windows[-1]["loss"] if windows else math.nan,
+        samples_per_s=(step - start_step) * pipeline.batch_size / seconds if step > start_step else math.nan,
         seconds=seconds,
     )
