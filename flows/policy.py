@@ -14,7 +14,7 @@ from touch2robot.config import load_profile
 from touch2robot.settings import DataLayout
 
 
-@flow(name="policy", task_runner=ProfileTaskRunner(), log_prints=True)
+@flow(name="policy", task_runner=ProfileTaskRunner(section="training_runner"), log_prints=True)
 def policy(profile: str = "smoke", data: str | None = None, tasks: list[str] | None = None, methods: list[str] | None = None) -> list[dict]:
     """Datasets -> training -> closed-loop evaluation for every task x method in ``rollouts``
     (narrowed by ``tasks`` / ``methods``, default the profile's ``policy`` section)."""

@@ -22,7 +22,7 @@ from touch2robot.settings import DataLayout
 from touch2robot.student.augment import split_demonstrations
 
 
-@flow(name="student", task_runner=ProfileTaskRunner(), log_prints=True)
+@flow(name="student", task_runner=ProfileTaskRunner(section="training_runner"), log_prints=True)
 def student(profile: str = "smoke", data: str | None = None, variants: list[str] | None = None) -> dict:
     """Dataset -> one training per variant (default: full and the profile's ablations) ->
     reconstructions of the held-out demonstrations of every task with teacher rollouts."""

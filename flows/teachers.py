@@ -17,7 +17,7 @@ from touch2robot.ingest import recording_rows
 from touch2robot.settings import DataLayout
 
 
-@flow(name="teachers", task_runner=ProfileTaskRunner(), log_prints=True)
+@flow(name="teachers", task_runner=ProfileTaskRunner(section="training_runner"), log_prints=True)
 def teachers(profile: str = "smoke", data: str | None = None, tasks: list[str] | None = None, methods: list[str] | None = None) -> list[dict]:
     """Train the profile's teachers (``tasks`` x ``methods``, default the profile's ``teacher``
     section) on every retargeted glove demonstration of each task, record their rollouts and

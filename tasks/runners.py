@@ -9,18 +9,39 @@ flow's runner is fixed when it is decorated while the profile is only known per 
 
 from __future__ import annotations
 
+import os
+import threading
+import time
 from collections.abc import Iterable
 from contextlib import AbstractContextManager, nullcontext
 from types import TracebackType
-from typing import Any
+from typing import Any, Literal
 
 from prefect.context import FlowRunContext
 from prefect.futures import PrefectFuture
 from prefect.settings import PREFECT_API_URL, get_current_settings, temporary_settings
 from prefect.task_runners import ProcessPoolTaskRunner, TaskRunner, ThreadPoolTaskRunner
 
-from touch2robot.config import load_profile
+from touch2robot.config import Profile, load_profile
 from touch2robot.runner_config import RunnerConfig
+
+
+def exit_with_parent(parent: int) -> None:
+    """Process-pool worker initializer: the worker ends when the flow process that started it is
+    gone. A pool's workers outlive a flow process killed with SIGKILL and would go on training
+    unobserved, writing the checkpoints that the re-run resuming from them also writes."""
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(1.0)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
+
+# the profile section a flow's fan-out follows: ``runner`` for data work, ``training_runner``
+# for the stages that train (their runs need a process each, see Profile.training_runner)
+RunnerSection = Literal["runner", "training_runner"]
 
 
 def build_task_runner(config: RunnerConfig) -> TaskRunner[Any]:
@@ -28,7 +49,7 @@ def build_task_runner(config: RunnerConfig) -> TaskRunner[Any]:
     if config.kind == "threads":
         return ThreadPoolTaskRunner(max_workers=config.max_workers)
     if config.kind == "processes":
-        return ProcessPoolTaskRunner(max_workers=config.max_workers)
+        return ProcessPoolTaskRunner(max_workers=config.max_workers, initializer=exit_with_parent, initargs=(os.getpid(),))
     try:
         from prefect_dask import DaskTaskRunner
     except ImportError as e:  # the optional extra is missing
@@ -73,18 +94,20 @@ class ProfileTaskRunner(TaskRunner[PrefectFuture[Any]]):
 
     Put ``task_runner=ProfileTaskRunner()`` in a fan-out flow's decorator: at the first
     task submitted in a run it reads the run's ``profile`` parameter, loads that
-    profile's ``runner`` section and starts the runner it describes; the runner is shut
-    down with the flow run. ``config`` pins a runner regardless of the profile (tests,
-    notebooks). A run without a ``profile`` parameter gets the default RunnerConfig."""
+    profile's ``section`` (``runner``, or ``training_runner`` for the stages that train) and
+    starts the runner it describes; the runner is shut down with the flow run. ``config``
+    pins a runner regardless of the profile (tests, notebooks). A run without a ``profile``
+    parameter gets the section's default."""
 
-    def __init__(self, config: RunnerConfig | None = None, parameter: str = "profile") -> None:
+    def __init__(self, config: RunnerConfig | None = None, parameter: str = "profile", section: RunnerSection = "runner") -> None:
         super().__init__()
         self._config = config
         self._parameter = parameter
+        self._section = section
         self._inner: TaskRunner[Any] | None = None
 
     def duplicate(self) -> ProfileTaskRunner:
-        return type(self)(self._config, self._parameter)
+        return type(self)(self._config, self._parameter, self._section)
 
     def resolve(self) -> RunnerConfig:
         """The runner section for the current flow run."""
@@ -92,9 +115,7 @@ class ProfileTaskRunner(TaskRunner[PrefectFuture[Any]]):
             return self._config
         ctx = FlowRunContext.get()
         profile = (ctx.parameters or {}).get(self._parameter) if ctx is not None else None
-        if profile is None:
-            return RunnerConfig()
-        return load_profile(profile).runner
+        return getattr(Profile() if profile is None else load_profile(profile), self._section)
 
     @property
     def inner(self) -> TaskRunner[Any] | None:

@@ -28,6 +28,21 @@ def _no_tracking_uri_leak():
     os.environ.pop("MLFLOW_TRACKING_URI", None)
 
 
+def live_processes_with_env(name: str, value: str) -> list[str]:
+    """Live (not zombie) processes, other than this one, whose environment sets ``name=value``."""
+    marker = f"{name}={value}".encode()
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit() or int(entry.name) == os.getpid():
+            continue
+        try:
+            if marker in (entry / "environ").read_bytes().split(b"\0") and (entry / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z":
+                found.append(f"{entry.name}: {(entry / 'cmdline').read_bytes().replace(b'\0', b' ')[:160].decode(errors='replace')}")
+        except OSError:
+            continue
+    return found
+
+
 @pytest.fixture(scope="session")
 def session_dir() -> Path:
     return _SESSION_DIR

@@ -28,6 +28,8 @@ def test_paper_profile_is_the_code_defaults() -> None:
         ("contacts: [1, 2]\n", "contacts"),
         ("synth: {subjects: 2\n", "not valid YAML"),
         ("- a\n- b\n", "expected a mapping"),
+        ("training_runner:\n  kind: threads\n", "training_runner.kind 'threads'"),
+        ("training_runner:\n  kind: dask\n  threads_per_worker: 2\n", "training_runner.threads_per_worker"),
     ],
 )
 def test_bad_profile_names_file_and_field(tmp_path: Path, text: str, message: str) -> None:

@@ -164,3 +164,29 @@ def test_policy_flow_fills_policy_eval_and_mlflow(tmp_path: Path) -> None:
     assert {"policy", "videos"} <= artefacts
     again = policy(profile="smoke", data=str(layout.root), methods=["contrack"])  # cached: the same rows, no retraining
     assert again == rows
+
+
+@pytest.mark.slow
+def test_a_policy_trained_beside_another_equals_it_trained_alone(tmp_path: Path) -> None:
+    """The fan-out must not change a result: LeRobot draws its batches, noise and crops from
+    torch's RNG, which a process shares between its threads, so two trainings side by side in one
+    process would take turns on it and neither would repeat. Training runs one process each."""
+    import yaml
+
+    from flows.policy import policy
+    from touch2robot.settings import DataLayout
+
+    # the smoke profile with fewer updates: any interleaving shows from the first batch on
+    smoke = yaml.safe_load((Path(__file__).parents[1] / "touch2robot" / "profiles" / "smoke.yaml").read_text())
+    smoke["policy"].update(steps=10, save_freq=10, log_freq=5, eval_episodes=1, eval_batch=1, video_episodes=0)
+    profile = tmp_path / "short.yaml"
+    profile.write_text(yaml.safe_dump(smoke))
+    rows = {}
+    for name, methods in (("alone", ["contrack"]), ("paired", ["contrack", "dexmachina"])):
+        layout = DataLayout(tmp_path / name)
+        for method in ("contrack", "dexmachina"):
+            lake_io.write_rows(layout.lake, "rollouts", "teacher-pick", scripted_rollout_rows("pick", method, 2, 24), partition={"method": method})
+        out = policy(profile=str(profile), data=str(layout.root), methods=methods)
+        rows[name] = next({k: v for k, v in r.items() if k != "mlflow_run"} for r in out if r["method"] == "contrack")
+    assert rows["paired"]["final_loss"] == rows["alone"]["final_loss"]
+    assert rows["paired"] == rows["alone"]

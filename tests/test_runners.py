@@ -47,7 +47,7 @@ PROBE = textwrap.dedent(
         return {"results": results, "cluster_workers": workers, "runner": type(runner).__name__}
 
     @task
-    def noop() -> int:
+    def noop(i: int = 0) -> int:
         return os.getpid()
 
     @flow(task_runner=ProfileTaskRunner())
@@ -55,6 +55,12 @@ PROBE = textwrap.dedent(
         pid = noop.submit().result()
         runner = FlowRunContext.get().task_runner.inner
         return {"runner": type(runner).__name__, "max_workers": getattr(runner, "_max_workers", None), "pid": pid}
+
+    @flow(task_runner=ProfileTaskRunner(section="training_runner"))
+    def trains(profile: str) -> dict:
+        pids = [f.result() for f in noop.map(range(2))]
+        runner = FlowRunContext.get().task_runner.inner
+        return {"runner": type(runner).__name__, "max_workers": getattr(runner, "_max_workers", None), "pids": pids}
 
     def main() -> None:
         out = {"flow_pid": os.getpid()}
@@ -76,6 +82,7 @@ PROBE = textwrap.dedent(
             out["remote"] = [type(remote).__name__, remote.address]
         out["dask"] = fan_out(6)
         out["by_profile"] = by_profile(sys.argv[1])
+        out["trains"] = trains(sys.argv[1])
         print("RESULT " + json.dumps(out))
 
     # Dask starts its workers with the spawn method, which re-imports this script
@@ -92,7 +99,7 @@ def probe(tmp_path_factory: pytest.TempPathFactory) -> dict:
     script = tmp / "probe.py"
     script.write_text(PROBE)
     profile = str(tmp / "threads3.yaml")
-    Path(profile).write_text("name: threads3\nrunner:\n  kind: threads\n  max_workers: 3\n")
+    Path(profile).write_text("name: threads3\nrunner:\n  kind: threads\n  max_workers: 3\ntraining_runner:\n  max_workers: 2\n")
     env = {
         **os.environ,
         "TOUCH2ROBOT_DATA": str(tmp / "data"),
@@ -167,3 +174,11 @@ def test_profile_names_the_runner(probe: dict) -> None:
     assert probe["by_profile"]["runner"] == "ThreadPoolTaskRunner"
     assert probe["by_profile"]["max_workers"] == 3
     assert probe["by_profile"]["pid"] == probe["flow_pid"]
+
+
+@pytest.mark.slow
+def test_trainings_run_in_worker_processes(probe: dict) -> None:
+    """The training stages' section: a process pool by default (torch's RNG is per process)."""
+    assert probe["trains"]["runner"] == "ProcessPoolTaskRunner"
+    assert probe["trains"]["max_workers"] == 2
+    assert probe["flow_pid"] not in probe["trains"]["pids"]

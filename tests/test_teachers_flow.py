@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import live_processes_with_env
 from mlflow.tracking import MlflowClient
 
 from touch2robot import catalog, tracking
@@ -84,6 +85,11 @@ def test_killed_training_resumes_from_its_last_checkpoint(demo_lake: Path, tmp_p
         time.sleep(0.5)
     first.send_signal(signal.SIGKILL)
     first.wait()
+    # the training ran in a process-pool worker: it must end with the flow, not train on unobserved
+    deadline = time.monotonic() + 15
+    while (left := live_processes_with_env("PREFECT_HOME", env["PREFECT_HOME"])) and time.monotonic() < deadline:
+        time.sleep(0.5)
+    assert not left, f"still running after the flow process was killed: {left}"
     folder = next(layout.checkpoints.rglob("model_4.pt")).parent
     done = {p.name for p in folder.glob("model_*.pt")}
     assert "model_38.pt" not in done and "model_39.pt" not in done
@@ -98,3 +104,4 @@ def test_killed_training_resumes_from_its_last_checkpoint(demo_lake: Path, tmp_p
     assert steps.count(0) == 1  # not started over: iteration 0 ran once
     assert set(steps) == set(range(40))
     assert catalog.query(layout, "SELECT count(DISTINCT rollout_id) AS n FROM rollouts WHERE origin = 'teacher'").to_pylist() == [{"n": 1}]
+

@@ -59,6 +59,11 @@ def _run_flow(entrypoint: str, **parameters: object) -> object:
         atexit.register(api.stop)
         url = api.wait_ready(settings.server.ephemeral.startup_timeout_seconds)
         os.environ["PREFECT_API_URL"] = url  # for processes the flow starts (task runners)
+        # and for threads without the flow's context (a process pool's result and log
+        # forwarding): they read the global settings, made at import, before this URL existed
+        from prefect.context import refresh_global_settings_context
+
+        refresh_global_settings_context()
         with temporary_settings({PREFECT_API_URL: url}):
             return flow(**parameters)
 

@@ -8,7 +8,7 @@ from importlib import resources
 from pathlib import Path
 
 import yaml
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from touch2robot.contacts.config import ContactsConfig
 from touch2robot.policy.config import PolicyConfig
@@ -32,9 +32,27 @@ class Profile(BaseModel):
     contacts: ContactsConfig = ContactsConfig()
     retarget: RetargetConfig = RetargetConfig()
     runner: RunnerConfig = RunnerConfig()
+    # torch keeps one RNG per process: trainings side by side in threads would take turns on it
+    # and none would repeat (nor equal the same training run alone), so they get processes
+    training_runner: RunnerConfig = Field(
+        RunnerConfig(kind="processes"),
+        description="runner of the training fan-outs (teachers, student variants, policy): one process per training",
+    )
     teacher: TeacherConfig = TeacherConfig()
     student: StudentConfig = StudentConfig()
     policy: PolicyConfig = PolicyConfig()
+
+    @model_validator(mode="after")
+    def _one_training_per_process(self) -> Profile:
+        t = self.training_runner
+        if t.kind == "threads" and t.max_workers != 1:
+            raise ValueError(
+                "training_runner.kind 'threads' would train side by side in one process, where torch's one RNG "
+                "makes no training repeat: use 'processes' (or 'dask' with threads_per_worker 1), or max_workers 1"
+            )
+        if t.kind == "dask" and t.dask_address is None and t.threads_per_worker != 1:
+            raise ValueError("training_runner.threads_per_worker must be 1: trainings sharing a worker process share torch's RNG")
+        return self
 
 
 class ProfileError(ValueError):
