@@ -25,6 +25,7 @@ from pathlib import Path
 
 import duckdb
 import pytest
+from conftest import live_processes_with_env
 
 from touch2robot.ingest import ingest_file
 from touch2robot.synth.config import SynthConfig
@@ -98,21 +99,7 @@ def finished(proc: subprocess.Popen, log: Path, timeout_s: float = 600) -> dict:
 
 def live_processes_with(data: Path) -> list[str]:
     """Live (not zombie) processes whose environment names this data folder."""
-    marker = f"TOUCH2ROBOT_DATA={data}".encode()
-    found = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit() or int(entry.name) == os.getpid():
-            continue
-        try:
-            if marker not in (entry / "environ").read_bytes().split(b"\0"):
-                continue
-            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
-            cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
-        except (FileNotFoundError, ProcessLookupError, PermissionError):
-            continue
-        if state != "Z":
-            found.append(f"{entry.name}: {cmdline[:160]}")
-    return found
+    return live_processes_with_env("TOUCH2ROBOT_DATA", str(data))
 
 
 def kill_survivors(data: Path) -> None:
