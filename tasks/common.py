@@ -19,11 +19,17 @@ def source_digest(module: str) -> str:
     spec = util.find_spec(module)
     if spec is None or spec.origin is None:
         raise ModuleNotFoundError(module)
-    origin = Path(spec.origin)
+    return code_digest(Path(spec.origin))
+
+
+def code_digest(origin: Path) -> str:
+    """sha256 over a module file, or over a package's .py files (``origin`` its __init__.py)
+    with their paths inside the package: the checkout's own folder is no part of the key, so
+    a clone elsewhere (a worktree, a worker's image) finds the same cached results."""
     paths = sorted(origin.parent.rglob("*.py")) if origin.name == "__init__.py" else [origin]
     h = hashlib.sha256()
     for p in paths:
-        h.update(p.as_posix().encode())
+        h.update(p.relative_to(origin.parent).as_posix().encode())
         h.update(p.read_bytes())
     return h.hexdigest()
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from touch2robot.local_server import answers, free_port, spawn_owned, stop_group
+from touch2robot.local_server import StopRequest, answers, free_port, spawn_owned, stop_group
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux only")
 
@@ -65,6 +65,17 @@ def test_child_dies_when_its_parent_is_killed() -> None:
             os.kill(child_pid, signal.SIGKILL)
 
 
+def test_a_stop_request_notes_the_signal_instead_of_raising_and_restores_the_handlers() -> None:
+    before = {sig: signal.getsignal(sig) for sig in StopRequest.SIGNALS}
+    with StopRequest() as stop:
+        assert stop.wait(0.0) is None
+        os.kill(os.getpid(), signal.SIGINT)  # no KeyboardInterrupt: Python would raise it here
+        started = time.monotonic()
+        assert stop.wait(5.0) == signal.SIGINT
+        assert time.monotonic() - started < 1.0  # a noted stop does not sleep again
+    assert {sig: signal.getsignal(sig) for sig in StopRequest.SIGNALS} == before
+
+
 def test_stop_reaches_grandchildren_that_ignore_sigterm() -> None:
     # a shell that starts a grandchild ignoring SIGTERM (as MLflow's job workers outlive theirs)
     proc = spawn_owned(["sh", "-c", "trap '' TERM; sleep 600 & echo $!; wait"], stdout=subprocess.PIPE, text=True)
@@ -110,7 +121,12 @@ def test_ui_start_serves_both_uis_and_a_stop_leaves_nothing_running(tmp_path: Pa
         assert answers(f"http://127.0.0.1:{mlflow_port}/health") and answers(f"http://127.0.0.1:{prefect_port}/api/health")
         assert len(processes_in(data)) >= 3  # the command and at least one process per server
         proc.send_signal(stop)  # a terminal's Ctrl-C reaches the command only: the servers have their own groups
-        proc.wait(timeout=60)
+        try:
+            proc.wait(timeout=60)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"the command did not end within 60 s of {stop.name}; its output:\n{log.read_text()[-4000:]}")
+        assert "stopping" in log.read_text()
+        assert proc.returncode == (0 if stop == signal.SIGINT else 128 + stop), log.read_text()[-4000:]
         deadline = time.monotonic() + 15
         while (left := processes_in(data)) and time.monotonic() < deadline:
             time.sleep(0.2)

@@ -260,3 +260,18 @@ def test_sigkill_of_the_command_alone_leaves_nothing_running_and_the_rerun_resum
         assert total == distinct > 0, "duplicate contact rows"
     finally:
         con.close()
+
+
+def test_the_library_code_key_follows_the_code_not_the_checkout_folder(tmp_path: Path) -> None:
+    from tasks.common import code_digest
+
+    for clone in ("checkout", "worktree"):
+        (tmp_path / clone / "pkg" / "sub").mkdir(parents=True)
+        (tmp_path / clone / "pkg" / "__init__.py").write_text("X = 1\n")
+        (tmp_path / clone / "pkg" / "sub" / "stage.py").write_text("Y = 2\n")
+    here, there = (code_digest(tmp_path / c / "pkg" / "__init__.py") for c in ("checkout", "worktree"))
+    assert here == there
+    (tmp_path / "worktree" / "pkg" / "sub" / "stage.py").write_text("Y = 3\n")
+    assert code_digest(tmp_path / "worktree" / "pkg" / "__init__.py") != here
+    (tmp_path / "checkout" / "pkg" / "sub" / "stage.py").rename(tmp_path / "checkout" / "pkg" / "sub" / "other.py")
+    assert code_digest(tmp_path / "checkout" / "pkg" / "__init__.py") != here  # a moved file is a code change

@@ -245,10 +245,10 @@ def ui(
     """The MLflow UI on the data folder's tracking store and the Prefect UI on its Prefect
     database (the runs of every command on that folder). With --start both run on
     127.0.0.1 until Ctrl-C or SIGTERM, which stops them and every process they started."""
-    import time
+    import signal
 
     layout = _layout(data)
-    from touch2robot.local_server import answers, spawn_owned, stop_group, stop_on_termination
+    from touch2robot.local_server import StopRequest, answers, spawn_owned, stop_group
     from touch2robot.tracking import local_uri, tracking_uri
 
     # name: (command, health URL, UI URL); a server the user points at is theirs to run
@@ -274,26 +274,27 @@ def ui(
         return
     if not servers:
         return
-    with stop_on_termination():
+    with StopRequest() as stop:
         running = {name: spawn_owned(command, env) for name, (command, _, _) in servers.items()}
         try:
             announced: set[str] = set()
-            while all(proc.poll() is None for proc in running.values()):
+            while stop.wait(0.5) is None and all(proc.poll() is None for proc in running.values()):
                 for name in running.keys() - announced:
                     if answers(servers[name][1]):
                         console.print(f"{name} UI on {servers[name][2]}")
                         announced.add(name)
                         if announced == running.keys():
                             console.print("Ctrl-C stops them")
-                time.sleep(0.5)
-            failed = next(name for name, proc in running.items() if proc.poll() is not None)
-            console.print(f"[red]the {failed} server exited with status {running[failed].returncode}[/red]")
-            raise typer.Exit(1)
-        except KeyboardInterrupt:
+            if stop.signum is None:
+                failed = next(name for name, proc in running.items() if proc.poll() is not None)
+                console.print(f"[red]the {failed} server exited with status {running[failed].returncode}[/red]")
+                raise typer.Exit(1)
             console.print("stopping")
         finally:
             for proc in running.values():
                 stop_group(proc)
+    if stop.signum != signal.SIGINT:  # a SIGTERM or SIGHUP ends the command as that signal would
+        raise typer.Exit(128 + stop.signum)
 
 
 @app.command()

@@ -161,3 +161,34 @@ def stop_on_termination() -> Iterator[None]:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+class StopRequest:
+    """Ctrl-C (SIGINT), SIGTERM and SIGHUP, noted instead of raised, for a command whose
+    main thread only watches its servers. An exception raised wherever the signal lands can
+    land inside ``Popen.poll`` after it took the child's wait lock and before the ``try`` that
+    releases it; the stop's ``wait()`` then blocks for ever. The handler only sets an
+    attribute (taking a lock there could deadlock with the code it interrupted)."""
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self._previous: dict[int, object] = {}
+
+    def _note(self, signum: int, _frame: object) -> None:
+        self.signum = signum
+
+    def wait(self, timeout_s: float) -> int | None:
+        """Sleep ``timeout_s`` unless a stop came; the signal that asked for it, or None."""
+        if self.signum is None:
+            time.sleep(timeout_s)  # a signal does not cut it short (PEP 475): at most this late
+        return self.signum
+
+    def __enter__(self) -> StopRequest:
+        self._previous = {sig: signal.signal(sig, self._note) for sig in self.SIGNALS}
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
