@@ -1,0 +1,94 @@
+"""Diffusion Policy training throughput against torch's intra-op thread count, for trainings side by
+side (the policy stage runs ``training_runner.max_workers`` of them at once) and beside a busy
+process of lower priority (a laptop's other work, a niced job).
+
+    uv run python bench/torch_threads.py [--profile local] [--steps 10] [--warmup 3] [--data DIR]
+
+Each case starts its trainings as fresh processes (``touch2robot.policy.train.train`` with
+``torch.set_num_threads(threads)``) twice, for ``warmup`` and ``warmup + steps`` updates; a
+training's samples/s = steps x batch / (difference of wall times), so start-up cancels out. The
+baseline is torch's default thread count (one per core), measured in the same run; the ratio is
+a case's total samples/s over the baseline case with the same trainings and competitor.
+The dataset is built as in ``bench/diffusion.py`` (the first rollouts of ``--data``, or a
+scripted grasp).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from diffusion import ROOT, _dataset  # noqa: E402
+
+TRAIN = (
+    "import sys, torch; torch.set_num_threads(int(sys.argv[6])); from pathlib import Path; from touch2robot.config import load_profile; "
+    "from touch2robot.policy.train import train; cfg = load_profile(sys.argv[1]).policy.model_copy(update={'log_freq': 10**6, 'save_freq': 10**6}); "
+    "train(Path(sys.argv[2]), sys.argv[3], cfg, Path(sys.argv[4]), steps=int(sys.argv[5]))"
+)
+SPIN = "while True: pass"
+
+
+def _walls(cmds: list[list[str]]) -> list[float]:
+    """Wall time of each command, all started at once."""
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
+    env.pop("OMP_NUM_THREADS", None)
+    start = time.perf_counter()
+    procs = [subprocess.Popen(c, env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True) for c in cmds]
+    walls = []
+    for p in procs:
+        _, err = p.communicate()
+        if p.returncode:
+            raise RuntimeError(f"a training failed:\n{err[-3000:]}")
+        walls.append(time.perf_counter() - start)
+    return walls
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--profile", default="local")
+    parser.add_argument("--steps", type=int, default=10, help="timed updates")
+    parser.add_argument("--warmup", type=int, default=3, help="updates whose cost (with start-up) is subtracted")
+    parser.add_argument("--data", type=Path, default=None, help="data folder with a rollouts table")
+    args = parser.parse_args()
+
+    import torch
+
+    from touch2robot.config import load_profile
+
+    cfg = load_profile(args.profile).policy
+    default = torch.get_num_threads()
+    side_by_side = load_profile(args.profile).training_runner.max_workers or 1
+    cases = [(n, threads, busy) for busy in (False, True) for n in sorted({1, side_by_side}) for threads in sorted({default, max(1, default // n), 1}, reverse=True)]
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        root, repo_id, _ = _dataset(args.data, cfg, tmp)
+        rate: dict[tuple[int, int, bool], float] = {}
+        for n, threads, busy in cases:
+            spinner = subprocess.Popen(["nice", "-n", "19", sys.executable, "-c", SPIN]) if busy else None
+            try:
+                walls = {}
+                for steps in (args.warmup, args.warmup + args.steps):
+                    cmds = [[sys.executable, "-c", TRAIN, args.profile, str(root), repo_id, str(tmp / f"{n}-{threads}-{busy}-{steps}-{i}"), str(steps), str(threads)] for i in range(n)]  # fmt: skip
+                    walls[steps] = _walls(cmds)
+            finally:
+                if spinner is not None:
+                    spinner.kill()
+                    spinner.wait()
+            # a longer run that took no longer than the short one: noise beyond the timed steps (raise --steps)
+            per = [args.steps * cfg.batch_size / (b - a) if b > a else float("nan") for a, b in zip(walls[args.warmup], walls[args.warmup + args.steps])]
+            rate[n, threads, busy] = sum(per)
+            base = rate[n, default, busy]
+            print(f"{n} training(s) x {threads} thread(s){' beside a niced busy process' if busy else '':>28}: "
+                  f"{' + '.join(f'{r:.2f}' for r in per)} = {rate[n, threads, busy]:.2f} samples/s, ratio {rate[n, threads, busy] / base:.2f} "
+                  f"to {default} threads each")  # fmt: skip
+    print(f"({args.profile}: batch {cfg.batch_size}, {cfg.image_size} px, n_obs {cfg.n_obs_steps}, down_dims {cfg.down_dims}; {os.cpu_count()} cores)")
+
+
+if __name__ == "__main__":
+    main()
