@@ -2,7 +2,7 @@
 side (the policy stage runs ``training_runner.max_workers`` of them at once) and beside a busy
 process of lower priority (a laptop's other work, a niced job).
 
-    uv run python bench/torch_threads.py [--profile local] [--steps 10] [--warmup 3] [--data DIR]
+    uv run python bench/torch_threads.py [--profile local] [--steps 10] [--warmup 3] [--data DIR] [--no-busy]
 
 Each case starts its trainings as fresh processes (``touch2robot.policy.train.train`` with
 ``torch.set_num_threads(threads)``) twice, for ``warmup`` and ``warmup + steps`` updates; a
@@ -55,6 +55,7 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=10, help="timed updates")
     parser.add_argument("--warmup", type=int, default=3, help="updates whose cost (with start-up) is subtracted")
     parser.add_argument("--data", type=Path, default=None, help="data folder with a rollouts table")
+    parser.add_argument("--no-busy", action="store_true", help="skip the cases beside a busy process (the slow ones)")
     args = parser.parse_args()
 
     import torch
@@ -64,7 +65,7 @@ def main() -> None:
     cfg = load_profile(args.profile).policy
     default = torch.get_num_threads()
     side_by_side = load_profile(args.profile).training_runner.max_workers or 1
-    cases = [(n, threads, busy) for busy in (False, True) for n in sorted({1, side_by_side}) for threads in sorted({default, max(1, default // n), 1}, reverse=True)]
+    cases = [(n, threads, busy) for busy in ((False,) if args.no_busy else (False, True)) for n in sorted({1, side_by_side}) for threads in sorted({default, max(1, default // n), 1}, reverse=True)]
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         root, repo_id, _ = _dataset(args.data, cfg, tmp)
