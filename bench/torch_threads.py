@@ -62,9 +62,10 @@ def main() -> None:
 
     from touch2robot.config import load_profile
 
-    cfg = load_profile(args.profile).policy
+    profile = load_profile(args.profile)
+    cfg = profile.policy
     default = torch.get_num_threads()
-    side_by_side = load_profile(args.profile).training_runner.max_workers or 1
+    side_by_side = profile.training_runner.max_workers or 1
     cases = [(n, threads, busy) for busy in ((False,) if args.no_busy else (False, True)) for n in sorted({1, side_by_side}) for threads in sorted({default, max(1, default // n), 1}, reverse=True)]
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
