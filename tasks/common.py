@@ -64,6 +64,16 @@ def file_digest(path: str | Path) -> str:
     return h.hexdigest()
 
 
+def one_torch_thread() -> None:
+    """One intra-op torch thread for this training: trainings (teachers, student variants,
+    policies) run side by side (``training_runner``), and torch's default of a thread per core
+    then oversubscribes the cores. bench/torch_threads.py on 2 cores, local policy profile: two
+    trainings side by side ran 32.3 samples/s together with 1 thread each vs 7.6 with 2."""
+    import torch
+
+    torch.set_num_threads(1)
+
+
 def stored(task_obj: Any, results: Path) -> Any:
     """The task with its results persisted under ``results`` (the data folder a flow run
     was given), so the cache follows the data folder, not the process environment."""

@@ -12,7 +12,7 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_table_artifact
 
-from tasks.common import ALWAYS_RUN, cache_policy, file_digest
+from tasks.common import ALWAYS_RUN, cache_policy, file_digest, one_torch_thread
 from touch2robot import lake as lake_io
 from touch2robot import tracking
 from touch2robot.policy import PolicyConfig
@@ -21,10 +21,6 @@ from touch2robot.sim.config import SimConfig
 
 POLICY_MODULES = ("touch2robot.policy", "touch2robot.sim", "touch2robot.scenes", "touch2robot.leap", "touch2robot.lake")
 DATASET_FIELDS = ("image_size", "cameras", "max_rollouts", "same_demonstrations")
-# one intra-op thread per training: the stage runs trainings side by side (training_runner), and
-# torch's default of one thread per core then oversubscribes the cores. bench/torch_threads.py on
-# 2 cores, local profile: two trainings side by side 32.3 samples/s with 1 thread each vs 7.6 with 2
-TORCH_THREADS = 1
 TAGS_NOTE = "none: ResNet-18 trained from scratch (pretrained_backbone_weights=None, no downloads)"
 
 
@@ -55,11 +51,10 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -
     the task x method's MLflow run. A crashed run resumes from its last LeRobot checkpoint and
     its MLflow run (the training folder is keyed by the dataset and the training settings)."""
     import mlflow
-    import torch
 
     from touch2robot.policy.train import train
 
-    torch.set_num_threads(TORCH_THREADS)
+    one_torch_thread()
     layout = DataLayout.from_env(data)
     settings = config.model_dump(mode="json", exclude={*DATASET_FIELDS, "eval_episodes", "eval_batch", "eval_seed", "object_noise_m", "video_episodes"})
     key = _digest({"dataset": dataset["digest"], "references": dataset["references"], "frames": dataset["frames"], **settings})
@@ -89,13 +84,12 @@ def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: s
     metrics plus a few episode videos in the task x method's MLflow run."""
     import mlflow
     import pyarrow as pa
-    import torch
 
     from touch2robot.policy.dataset import read_rollouts
     from touch2robot.policy.evaluate import evaluate, write_video
     from touch2robot.sim.scene import build_scene
 
-    torch.set_num_threads(TORCH_THREADS)
+    one_torch_thread()
     layout = DataLayout.from_env(data)
     scene = build_scene(trained["task"], sim)
     rollouts = read_rollouts(Path(trained["path"]), config.max_rollouts, trained["references"])

@@ -13,7 +13,7 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
-from tasks.common import ALWAYS_RUN, cache_policy, file_digest
+from tasks.common import ALWAYS_RUN, cache_policy, file_digest, one_torch_thread
 from touch2robot import lake as lake_io
 from touch2robot import tracking
 from touch2robot.settings import DataLayout
@@ -107,7 +107,7 @@ def train_student(variant: str, config: StudentConfig, teacher: TeacherConfig, d
     from touch2robot.student.model import ServingStudent
     from touch2robot.student.train import CHECKPOINT, train, windows_from_table
 
-    torch.set_num_threads(1)  # variants train side by side
+    one_torch_thread()
     layout = DataLayout.from_env(data)
     cfg = config.variant(variant)
     dump = cfg.model_dump(mode="json", exclude={"ablations"})
@@ -147,12 +147,11 @@ def reconstruct(trained: dict, config: StudentConfig, teacher: TeacherConfig, sp
     them). The ablations are compared in MLflow only."""
     import mlflow
     import pyarrow.parquet as pq
-    import torch
 
     from touch2robot.student.execute import reconstruct_task
     from touch2robot.student.train import load_net
 
-    torch.set_num_threads(1)
+    one_torch_thread()
     layout = DataLayout.from_env(data)
     variant, method = trained["variant"], config.teacher_method
     net = load_net(Path(trained["folder"]), config.variant(variant))

@@ -10,7 +10,7 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
-from tasks.common import ALWAYS_RUN, cache_policy, file_digest
+from tasks.common import ALWAYS_RUN, cache_policy, file_digest, one_torch_thread
 from touch2robot import lake as lake_io
 from touch2robot import tracking
 from touch2robot.settings import DataLayout
@@ -71,11 +71,9 @@ def train_teacher(task_name: str, method: str, config: TeacherConfig, recordings
     """Train (or finish training) the teacher of one task and method; metrics stream to one MLflow
     run (stage "teachers"), checkpoints are its artefacts. A killed run resumes from the newest
     checkpoint: the retry, or the next flow run, continues instead of starting over."""
-    import torch
-
     from touch2robot.teachers.train import make_teacher_env, train
 
-    torch.set_num_threads(1)  # the fan-out runs teachers side by side; MuJoCo has its own threads
+    one_torch_thread()
     layout = DataLayout.from_env(data)
     refs = _references(layout, recordings, config)
     folder = _run_folder(layout, task_name, method, config, digest)
@@ -107,7 +105,7 @@ def teacher_rollouts(trained: dict, config: TeacherConfig, recordings: list[dict
     from touch2robot.teachers import rollouts as ro
     from touch2robot.teachers.train import load_policy, make_teacher_env
 
-    torch.set_num_threads(1)
+    one_torch_thread()
     layout = DataLayout.from_env(data)
     task_name, method = trained["task"], trained["method"]
     refs = _references(layout, recordings, config)
