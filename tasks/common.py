@@ -4,13 +4,14 @@ processes and sees the library code, result storage under the data folder."""
 from __future__ import annotations
 
 import hashlib
+import os
 from dataclasses import dataclass
 from functools import lru_cache
 from importlib import util
 from pathlib import Path
 from typing import Any
 
-from prefect.cache_policies import INPUTS, NO_CACHE, TASK_SOURCE, CachePolicy
+from prefect.cache_policies import NO_CACHE, TASK_SOURCE, CachePolicy, Inputs
 
 
 @lru_cache(maxsize=None)
@@ -50,9 +51,10 @@ class LibraryCode(CachePolicy):
 ALWAYS_RUN = {"cache_policy": NO_CACHE, "persist_result": False}
 
 
-def cache_policy(*modules: str) -> CachePolicy:
-    """INPUTS + TASK_SOURCE + the named library modules (and the schemas, always)."""
-    return INPUTS + TASK_SOURCE + LibraryCode(modules=("schemas", *modules))
+def cache_policy(*modules: str, exclude: tuple[str, ...] = ()) -> CachePolicy:
+    """The task's inputs (less ``exclude``: how it runs, not what it computes) + TASK_SOURCE +
+    the named library modules (and the schemas, always)."""
+    return Inputs(exclude=list(exclude)) + TASK_SOURCE + LibraryCode(modules=("schemas", *modules))
 
 
 def file_digest(path: str | Path) -> str:
@@ -65,13 +67,20 @@ def file_digest(path: str | Path) -> str:
 
 
 def one_torch_thread() -> None:
-    """One intra-op torch thread for this training: trainings (teachers, student variants,
-    policies) run side by side (``training_runner``), and torch's default of a thread per core
-    then oversubscribes the cores. bench/torch_threads.py on 2 cores, local policy profile: two
-    trainings side by side ran 32.3 samples/s together with 1 thread each vs 7.6 with 2."""
+    """One intra-op torch thread for a teacher or student training: the stage trains several side
+    by side (``training_runner``), and torch's default of a thread per core each would
+    oversubscribe the cores (see ``torch_threads``)."""
     import torch
 
     torch.set_num_threads(1)
+
+
+def torch_threads(side_by_side: int) -> int:
+    """Intra-op torch threads for one of ``side_by_side`` trainings running at once: this
+    machine's cores shared out, at least one each. bench/torch_threads.py, local policy profile
+    on 2 cores: two side by side ran 17.7 samples/s together with 1 thread each and 2.9 with
+    torch's default of a thread per core each; one alone 18.4 with 2 threads and 7.7 with 1."""
+    return max(1, len(os.sched_getaffinity(0)) // max(1, side_by_side))
 
 
 def stored(task_obj: Any, results: Path) -> Any:
