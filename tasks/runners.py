@@ -39,6 +39,23 @@ def exit_with_parent(parent: int) -> None:
     threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
+def stop_pool_workers(runner: ProcessPoolTaskRunner, grace_s: float = 10.0) -> None:
+    """SIGTERM to a process pool's workers, then SIGKILL to any left after ``grace_s``. For a
+    flow run asked to stop (Ctrl-C, SIGTERM): the pool's shutdown waits for running tasks,
+    and a training runs for hours. A stopped training resumes from its last checkpoint."""
+    executor = runner._executor
+    workers = list((getattr(executor, "_processes", None) or {}).values())
+    for worker in workers:
+        if worker.is_alive():
+            worker.terminate()
+    deadline = time.monotonic() + grace_s
+    for worker in workers:
+        worker.join(max(0.0, deadline - time.monotonic()))
+        if worker.is_alive():
+            worker.kill()
+            worker.join()
+
+
 # the profile section a flow's fan-out follows: ``runner`` for data work, ``training_runner``
 # for the stages that train (their runs need a process each, see Profile.training_runner)
 RunnerSection = Literal["runner", "training_runner"]
@@ -144,6 +161,9 @@ class ProfileTaskRunner(TaskRunner[PrefectFuture[Any]]):
     def __exit__(self, exc_type: type[BaseException] | None, exc_value: BaseException | None, traceback: TracebackType | None) -> None:
         inner, self._inner = self._inner, None
         try:
+            # a stop (Ctrl-C, SIGTERM: Prefect's TerminationSignal, SystemExit), not a failed task
+            if isinstance(inner, ProcessPoolTaskRunner) and exc_type is not None and not issubclass(exc_type, Exception):
+                stop_pool_workers(inner)
             if inner is not None:
                 inner.__exit__(exc_type, exc_value, traceback)
         finally:

@@ -12,9 +12,11 @@ import signal
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import pytest
+from conftest import live_processes_with_env
 from pydantic import ValidationError
 
 from touch2robot.runner_config import RunnerConfig
@@ -182,3 +184,80 @@ def test_trainings_run_in_worker_processes(probe: dict) -> None:
     assert probe["trains"]["runner"] == "ProcessPoolTaskRunner"
     assert probe["trains"]["max_workers"] == 2
     assert probe["flow_pid"] not in probe["trains"]["pids"]
+
+
+# Two long "trainings" in a process pool, each writing its worker's pid once it has started.
+LONG_TRAININGS = textwrap.dedent(
+    """
+    import os, time
+    from pathlib import Path
+    from prefect import flow, task
+    from tasks.runners import ProfileTaskRunner
+    from touch2robot.runner_config import RunnerConfig
+
+    @task
+    def long_training(folder: str, i: int) -> None:
+        Path(folder, f"{os.getpid()}.pid").write_text(str(i))
+        time.sleep(900)
+
+    @flow(task_runner=ProfileTaskRunner(RunnerConfig(kind="processes", max_workers=2)))
+    def trains(folder: str) -> None:
+        for f in long_training.map(folder, range(2)):
+            f.result()
+    """
+)
+# ...run as the CLI runs a flow: its own API server, SIGTERM handled (touch2robot.cli)
+RUN_AS_CLI = textwrap.dedent(
+    """
+    import sys
+    from pathlib import Path
+    from touch2robot.cli import _layout, _run_flow
+
+    if __name__ == "__main__":  # the pool's workers (spawned) import this script again
+        _layout(Path(sys.argv[1]))
+        sys.path.insert(0, sys.argv[2])
+        _run_flow("long_trainings:trains", folder=sys.argv[3])
+    """
+)
+
+
+def test_a_stopped_flow_run_stops_its_trainings_instead_of_waiting_for_them(tmp_path: Path) -> None:
+    """SIGTERM to the flow's command alone (a supervisor, ``kill``): the process pool's shutdown
+    would wait for the running trainings, hours on a laptop. The workers are stopped instead, the
+    command ends with status 128 + 15 and leaves nothing running (its API server neither)."""
+    (tmp_path / "long_trainings.py").write_text(LONG_TRAININGS)
+    (tmp_path / "run.py").write_text(RUN_AS_CLI)
+    started = tmp_path / "started"
+    started.mkdir()
+    marker = str(tmp_path)
+    env = {**os.environ, "PREFECT_SERVER_ANALYTICS_ENABLED": "false", "TOUCH2ROBOT_TEST_MARKER": marker}
+    env.pop("PREFECT_API_URL", None)
+    log = tmp_path / "flow.log"
+    with open(log, "w") as out:
+        proc = subprocess.Popen(
+            [sys.executable, str(tmp_path / "run.py"), str(tmp_path / "data"), str(tmp_path), str(started)],
+            cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
+        )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 300
+        while len(list(started.glob("*.pid"))) < 2 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.5)
+        assert len(list(started.glob("*.pid"))) == 2, log.read_text()[-6000:]
+        workers = sorted(int(p.stem) for p in started.glob("*.pid"))
+
+        proc.send_signal(signal.SIGTERM)  # the command only, not its process group
+        try:
+            proc.wait(timeout=90)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"the flow run did not end within 90 s of SIGTERM; its log:\n{log.read_text()[-6000:]}")
+        assert proc.returncode == 128 + signal.SIGTERM, log.read_text()[-6000:]
+        deadline = time.monotonic() + 15
+        while (left := live_processes_with_env("TOUCH2ROBOT_TEST_MARKER", marker)) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not left, f"still running after the command ended (the workers were {workers}): {left}"
+    finally:
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait()
