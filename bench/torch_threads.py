@@ -2,13 +2,15 @@
 side (the policy stage runs ``training_runner.max_workers`` of them at once) and beside a busy
 process of lower priority (a laptop's other work, a niced job).
 
-    uv run python bench/torch_threads.py [--profile local] [--steps 10] [--warmup 3] [--data DIR] [--no-busy]
+    uv run python bench/torch_threads.py [--profile local] [--steps 30] [--warmup 10] [--window 10]
+        [--data DIR] [--no-busy] [--no-oversubscribed]
 
 Each case starts its trainings as fresh processes (``touch2robot.policy.train.train`` with
-``torch.set_num_threads(threads)``) twice, for ``warmup`` and ``warmup + steps`` updates; a
-training's samples/s = steps x batch / (difference of wall times), so start-up cancels out. The
-baseline is torch's default thread count (one per core), measured in the same run; the ratio is
-a case's total samples/s over the baseline case with the same trainings and competitor.
+``torch.set_num_threads(threads)``), all at once, for ``warmup + steps`` updates. A training's
+samples/s is the mean of its own per-window figures (``on_log``, every ``window`` updates) over
+the ``steps`` after the warmup: start-up, and the first updates' one-off costs, stay out of it.
+The baseline is torch's default thread count (one per core), measured in the same run; the ratio
+is a case's total samples/s over the baseline case with the same trainings and competitor.
 The dataset is built as in ``bench/diffusion.py`` (the first rollouts of ``--data``, or a
 scripted grasp).
 """
@@ -17,10 +19,10 @@ from __future__ import annotations
 
 import argparse
 import os
+import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -28,34 +30,36 @@ from diffusion import ROOT, _dataset  # noqa: E402
 
 TRAIN = (
     "import sys, torch; torch.set_num_threads(int(sys.argv[6])); from pathlib import Path; from touch2robot.config import load_profile; "
-    "from touch2robot.policy.train import train; cfg = load_profile(sys.argv[1]).policy.model_copy(update={'log_freq': 10**6, 'save_freq': 10**6}); "
-    "train(Path(sys.argv[2]), sys.argv[3], cfg, Path(sys.argv[4]), steps=int(sys.argv[5]))"
+    "from touch2robot.policy.train import train; cfg = load_profile(sys.argv[1]).policy.model_copy(update={'log_freq': int(sys.argv[7]), 'save_freq': 10**6}); "
+    "train(Path(sys.argv[2]), sys.argv[3], cfg, Path(sys.argv[4]), steps=int(sys.argv[5]), on_log=lambda step, m: print('RATE', step, m['samples_per_s'], flush=True))"
 )
 SPIN = "while True: pass"
 
 
-def _walls(cmds: list[list[str]]) -> list[float]:
-    """Wall time of each command, all started at once."""
+def _rates(cmds: list[list[str]], after_step: int) -> list[float]:
+    """Each command's mean samples/s over its windows that end after ``after_step``, all started at once."""
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
     env.pop("OMP_NUM_THREADS", None)
-    start = time.perf_counter()
-    procs = [subprocess.Popen(c, env=env, cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True) for c in cmds]
-    walls = []
+    procs = [subprocess.Popen(c, env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for c in cmds]
+    rates = []
     for p in procs:
-        _, err = p.communicate()
+        out, err = p.communicate()
         if p.returncode:
             raise RuntimeError(f"a training failed:\n{err[-3000:]}")
-        walls.append(time.perf_counter() - start)
-    return walls
+        windows = [float(r) for _, step, r in (line.split() for line in out.splitlines() if line.startswith("RATE ")) if int(step) > after_step]
+        rates.append(statistics.fmean(windows) if windows else float("nan"))
+    return rates
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--profile", default="local")
-    parser.add_argument("--steps", type=int, default=10, help="timed updates")
-    parser.add_argument("--warmup", type=int, default=3, help="updates whose cost (with start-up) is subtracted")
+    parser.add_argument("--steps", type=int, default=30, help="timed updates")
+    parser.add_argument("--warmup", type=int, default=10, help="updates first, untimed")
+    parser.add_argument("--window", type=int, default=10, help="updates per logged samples/s figure (divides --warmup)")
     parser.add_argument("--data", type=Path, default=None, help="data folder with a rollouts table")
     parser.add_argument("--no-busy", action="store_true", help="skip the cases beside a busy process (the slow ones)")
+    parser.add_argument("--no-oversubscribed", action="store_true", help="skip the cases with more threads in all than cores (slow)")
     args = parser.parse_args()
 
     import torch
@@ -66,7 +70,8 @@ def main() -> None:
     cfg = profile.policy
     default = torch.get_num_threads()
     side_by_side = profile.training_runner.max_workers or 1
-    cases = [(n, threads, busy) for busy in ((False,) if args.no_busy else (False, True)) for n in sorted({1, side_by_side}) for threads in sorted({default, max(1, default // n), 1}, reverse=True)]
+    cases = [(n, threads, busy) for busy in ((False,) if args.no_busy else (False, True)) for n in sorted({1, side_by_side}) for threads in sorted({default, max(1, default // n), 1}, reverse=True)
+             if not (args.no_oversubscribed and n * threads > default)]  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         root, repo_id, _ = _dataset(args.data, cfg, tmp)
@@ -74,18 +79,15 @@ def main() -> None:
         for n, threads, busy in cases:
             spinner = subprocess.Popen(["nice", "-n", "19", sys.executable, "-c", SPIN]) if busy else None
             try:
-                walls = {}
-                for steps in (args.warmup, args.warmup + args.steps):
-                    cmds = [[sys.executable, "-c", TRAIN, args.profile, str(root), repo_id, str(tmp / f"{n}-{threads}-{busy}-{steps}-{i}"), str(steps), str(threads)] for i in range(n)]  # fmt: skip
-                    walls[steps] = _walls(cmds)
+                steps = args.warmup + args.steps
+                cmds = [[sys.executable, "-c", TRAIN, args.profile, str(root), repo_id, str(tmp / f"{n}-{threads}-{busy}-{i}"), str(steps), str(threads), str(args.window)] for i in range(n)]  # fmt: skip
+                per = _rates(cmds, args.warmup)
             finally:
                 if spinner is not None:
                     spinner.kill()
                     spinner.wait()
-            # a longer run that took no longer than the short one: noise beyond the timed steps (raise --steps)
-            per = [args.steps * cfg.batch_size / (b - a) if b > a else float("nan") for a, b in zip(walls[args.warmup], walls[args.warmup + args.steps])]
             rate[n, threads, busy] = sum(per)
-            base = rate[n, default, busy]
+            base = rate.get((n, default, busy), float("nan"))  # nan: the baseline case was skipped
             print(f"{n} training(s) x {threads} thread(s){' beside a niced busy process' if busy else '':>28}: "
                   f"{' + '.join(f'{r:.2f}' for r in per)} = {rate[n, threads, busy]:.2f} samples/s, ratio {rate[n, threads, busy] / base:.2f} "
                   f"to {default} threads each")  # fmt: skip

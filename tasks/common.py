@@ -78,8 +78,8 @@ def one_torch_thread() -> None:
 def torch_threads(side_by_side: int) -> int:
     """Intra-op torch threads for one of ``side_by_side`` trainings running at once: this
     machine's cores shared out, at least one each. bench/torch_threads.py, local policy profile
-    on 2 cores: two side by side ran 17.7 samples/s together with 1 thread each and 2.9 with
-    torch's default of a thread per core each; one alone 18.4 with 2 threads and 7.7 with 1."""
+    on 2 cores: one alone 11.8 samples/s with 2 threads and 8.9 with 1; two side by side 17.8
+    together with 1 thread each, and 2.8-7.6 with torch's default of a thread per core each."""
     return max(1, len(os.sched_getaffinity(0)) // max(1, side_by_side))
 
 
