@@ -5,6 +5,8 @@ given time to start on a 2-core machine."""
 from __future__ import annotations
 
 import os
+import signal
+import subprocess
 import tempfile
 from pathlib import Path
 
@@ -41,6 +43,15 @@ def live_processes_with_env(name: str, value: str) -> list[str]:
         except OSError:
             continue
     return found
+
+
+def kill_group(proc: subprocess.Popen) -> None:
+    """SIGKILL to a process started with ``start_new_session`` and all it started; reaped."""
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    proc.wait(timeout=30)
 
 
 @pytest.fixture(scope="session")

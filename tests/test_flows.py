@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import kill_group
 
 from touch2robot.settings import DataLayout
 
@@ -34,17 +35,10 @@ def _run(data: Path) -> str:
     try:
         out, _ = proc.communicate(timeout=400)
     finally:
-        _kill_group(proc)
+        kill_group(proc)
     assert proc.returncode == 0, out[-3000:]
     return out
 
-
-def _kill_group(proc: subprocess.Popen) -> None:
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
-    proc.wait(timeout=30)
 
 
 def _copy_recordings(smoke_data: Path, data: Path) -> None:
@@ -100,7 +94,7 @@ def test_sigkill_midway_then_rerun_resumes_from_cache(smoke_data: Path, tmp_path
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait(timeout=30)
     finally:
-        _kill_group(proc)
+        kill_group(proc)
     done_before = len(list(results.iterdir()))
     out = _run(data)
     assert out.count("Finished in state Cached") >= min(done_before, 3), out[-3000:]

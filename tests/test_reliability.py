@@ -25,7 +25,7 @@ from pathlib import Path
 
 import duckdb
 import pytest
-from conftest import live_processes_with_env
+from conftest import kill_group, live_processes_with_env
 
 from touch2robot.ingest import ingest_file
 from touch2robot.synth.config import SynthConfig
@@ -66,13 +66,6 @@ def start_flow(module: str, flow: str, data: Path, log: Path) -> subprocess.Pope
             cwd=ROOT, env=flow_env(data), stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
         )  # fmt: skip
 
-
-def kill_group(proc: subprocess.Popen) -> None:
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
-    proc.wait()
 
 
 @pytest.fixture

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import live_processes_with_env
+from conftest import kill_group, live_processes_with_env
 from pydantic import ValidationError
 
 from touch2robot.runner_config import RunnerConfig
@@ -94,6 +94,7 @@ PROBE = textwrap.dedent(
 )
 
 
+
 @pytest.fixture(scope="module")
 def probe(tmp_path_factory: pytest.TempPathFactory) -> dict:
     """Run PROBE once (about a minute: Prefect's embedded API and a LocalCluster start)."""
@@ -117,12 +118,7 @@ def probe(tmp_path_factory: pytest.TempPathFactory) -> dict:
     try:
         output, _ = proc.communicate(timeout=400)
     finally:
-        # the flow process, its API server and any Dask worker left behind share the group
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-        proc.wait()
+        kill_group(proc)  # the flow process, its API server and any Dask worker left behind share the group
     lines = [line for line in output.splitlines() if line.startswith("RESULT ")]
     assert proc.returncode == 0 and lines, output[-6000:]
     result = json.loads(lines[-1][len("RESULT ") :])
@@ -256,8 +252,4 @@ def test_a_stopped_flow_run_stops_its_trainings_instead_of_waiting_for_them(tmp_
             time.sleep(0.2)
         assert not left, f"still running after the command ended (the workers were {workers}): {left}"
     finally:
-        try:
-            os.killpg(proc.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
-        proc.wait()
+        kill_group(proc)
