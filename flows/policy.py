@@ -28,10 +28,8 @@ def policy(profile: str = "smoke", data: str | None = None, tasks: list[str] | N
     # replays and evaluation run the physics the rollouts were recorded with (the teachers' sim)
     sim = load_profile(profile).teacher.sim
     datasets = stored(build_policy_dataset, layout.results).map(sources, unmapped(config), unmapped(sim), unmapped(root))
-    # the trainings running at once share the cores: a lone one gets them all
-    side_by_side = min(len(sources), load_profile(profile).training_runner.max_workers)
-    trained = stored(train_policy, layout.results).map(datasets, unmapped(config), unmapped(root), unmapped(profile), unmapped(side_by_side))
-    evaluated = stored(evaluate_policy, layout.results).map(trained, unmapped(config), unmapped(sim), unmapped(root), unmapped(profile), unmapped(side_by_side))
+    trained = stored(train_policy, layout.results).map(datasets, unmapped(config), unmapped(root), unmapped(profile))
+    evaluated = stored(evaluate_policy, layout.results).map(trained, unmapped(config), unmapped(sim), unmapped(root), unmapped(profile))
     rows = [f.result() for f in evaluated]
     refresh_catalog(root)
     report_policy(profile, rows)

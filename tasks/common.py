@@ -4,14 +4,13 @@ processes and sees the library code, result storage under the data folder."""
 from __future__ import annotations
 
 import hashlib
-import os
 from dataclasses import dataclass
 from functools import lru_cache
 from importlib import util
 from pathlib import Path
 from typing import Any
 
-from prefect.cache_policies import NO_CACHE, TASK_SOURCE, CachePolicy, Inputs
+from prefect.cache_policies import INPUTS, NO_CACHE, TASK_SOURCE, CachePolicy
 
 
 @lru_cache(maxsize=None)
@@ -51,10 +50,9 @@ class LibraryCode(CachePolicy):
 ALWAYS_RUN = {"cache_policy": NO_CACHE, "persist_result": False}
 
 
-def cache_policy(*modules: str, exclude: tuple[str, ...] = ()) -> CachePolicy:
-    """The task's inputs (less ``exclude``: how it runs, not what it computes) + TASK_SOURCE +
-    the named library modules (and the schemas, always)."""
-    return Inputs(exclude=list(exclude)) + TASK_SOURCE + LibraryCode(modules=("schemas", *modules))
+def cache_policy(*modules: str) -> CachePolicy:
+    """INPUTS + TASK_SOURCE + the named library modules (and the schemas, always)."""
+    return INPUTS + TASK_SOURCE + LibraryCode(modules=("schemas", *modules))
 
 
 def file_digest(path: str | Path) -> str:
@@ -67,20 +65,16 @@ def file_digest(path: str | Path) -> str:
 
 
 def one_torch_thread() -> None:
-    """One intra-op torch thread for a teacher or student training: the stage trains several side
-    by side (``training_runner``), and torch's default of a thread per core each would
-    oversubscribe the cores (see ``torch_threads``)."""
+    """One intra-op torch thread for a training (teacher, student variant, policy): the stages
+    train side by side (``training_runner``), and torch's default of a thread per core each
+    oversubscribes the cores. A lone training would be faster with them all, but a thread count
+    that followed the run's other trainings would make a result depend on them (another count
+    sums in another order). bench/torch_threads.py, local policy profile on 2 cores: two side by
+    side 17.8 samples/s together with 1 thread each, 2.8-7.6 with 2 each; one alone 8.9 with 1
+    thread, 11.8 with 2."""
     import torch
 
     torch.set_num_threads(1)
-
-
-def torch_threads(side_by_side: int) -> int:
-    """Intra-op torch threads for one of ``side_by_side`` trainings running at once: this
-    machine's cores shared out, at least one each. bench/torch_threads.py, local policy profile
-    on 2 cores: one alone 11.8 samples/s with 2 threads and 8.9 with 1; two side by side 17.8
-    together with 1 thread each, and 2.8-7.6 with torch's default of a thread per core each."""
-    return max(1, len(os.sched_getaffinity(0)) // max(1, side_by_side))
 
 
 def stored(task_obj: Any, results: Path) -> Any:

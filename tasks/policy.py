@@ -12,7 +12,7 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_table_artifact
 
-from tasks.common import ALWAYS_RUN, cache_policy, file_digest, torch_threads
+from tasks.common import ALWAYS_RUN, cache_policy, file_digest, one_torch_thread
 from touch2robot import lake as lake_io
 from touch2robot import tracking
 from touch2robot.policy import PolicyConfig
@@ -45,20 +45,16 @@ def build_policy_dataset(source: dict, config: PolicyConfig, sim: SimConfig, dat
     return {**source, **summary.__dict__}
 
 
-@task(cache_policy=cache_policy(*POLICY_MODULES, exclude=("side_by_side",)), persist_result=True, task_run_name="train-{dataset[method]}-{dataset[task]}")
-def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str, side_by_side: int = 1) -> dict:
+@task(cache_policy=cache_policy(*POLICY_MODULES), persist_result=True, task_run_name="train-{dataset[method]}-{dataset[task]}")
+def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -> dict:
     """Train LeRobot's Diffusion Policy on one dataset with loss and learning rate streamed to
     the task x method's MLflow run. A crashed run resumes from its last LeRobot checkpoint and
-    its MLflow run (the training folder is keyed by the dataset and the training settings).
-    ``side_by_side``: how many trainings the flow run has running at once; they share the cores
-    (``torch_threads``), and it is no part of the cache key."""
+    its MLflow run (the training folder is keyed by the dataset and the training settings)."""
     import mlflow
-    import torch
 
     from touch2robot.policy.train import train
 
-    threads = torch_threads(side_by_side)
-    torch.set_num_threads(threads)
+    one_torch_thread()
     layout = DataLayout.from_env(data)
     settings = config.model_dump(mode="json", exclude={*DATASET_FIELDS, "eval_episodes", "eval_batch", "eval_seed", "object_noise_m", "video_episodes"})
     key = _digest({"dataset": dataset["digest"], "references": dataset["references"], "frames": dataset["frames"], **settings})
@@ -73,7 +69,6 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str, s
         run_ctx = tracking.stage_run(layout, "policy", f"{dataset['method']}-{dataset['task']}", tags)
     with run_ctx as run:
         run_file.write_text(run.info.run_id)
-        mlflow.set_tag("torch_threads", str(threads))  # a tag: a resumed run may get another count
         mlflow.log_params({**settings, "dataset_root": dataset["root"], "dataset_episodes": dataset["episodes"], "dataset_frames": dataset["frames"]})
         mlflow.log_metrics({"dataset/render_fps": dataset["render_fps"], "dataset/replay_max_joint_error_rad": dataset["replay_max_joint_error_rad"]})
         result = train(Path(dataset["root"]), dataset["repo_id"], config, out / "lerobot", on_log=tracking.step_logger(run.info.run_id, "train/"))
@@ -83,20 +78,18 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str, s
     return {**dataset, **result.__dict__, "mlflow_run": run.info.run_id}
 
 
-@task(cache_policy=cache_policy(*POLICY_MODULES, exclude=("side_by_side",)), persist_result=True, task_run_name="evaluate-{trained[method]}-{trained[task]}")
-def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: str, profile: str, side_by_side: int = 1) -> dict:
+@task(cache_policy=cache_policy(*POLICY_MODULES), persist_result=True, task_run_name="evaluate-{trained[method]}-{trained[task]}")
+def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: str, profile: str) -> dict:
     """Closed-loop episodes of the trained policy; one ``policy_eval`` row (lake) and success
-    metrics plus a few episode videos in the task x method's MLflow run (``side_by_side`` as
-    for ``train_policy``)."""
+    metrics plus a few episode videos in the task x method's MLflow run."""
     import mlflow
     import pyarrow as pa
-    import torch
 
     from touch2robot.policy.dataset import read_rollouts
     from touch2robot.policy.evaluate import evaluate, write_video
     from touch2robot.sim.scene import build_scene
 
-    torch.set_num_threads(torch_threads(side_by_side))
+    one_torch_thread()
     layout = DataLayout.from_env(data)
     scene = build_scene(trained["task"], sim)
     rollouts = read_rollouts(Path(trained["path"]), config.max_rollouts, trained["references"])

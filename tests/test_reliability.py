@@ -269,21 +269,3 @@ def test_the_library_code_key_follows_the_code_not_the_checkout_folder(tmp_path:
     (tmp_path / "checkout" / "pkg" / "sub" / "stage.py").rename(tmp_path / "checkout" / "pkg" / "sub" / "other.py")
     assert code_digest(tmp_path / "checkout" / "pkg" / "__init__.py") != here  # a moved file is a code change
 
-
-def test_the_trainings_running_at_once_share_the_cores_and_the_share_is_no_part_of_the_cache_key() -> None:
-    from types import SimpleNamespace
-
-    from tasks.common import torch_threads
-    from tasks.policy import evaluate_policy, train_policy
-
-    cores = len(os.sched_getaffinity(0))
-    assert torch_threads(1) == cores
-    assert torch_threads(2) == max(1, cores // 2)
-    assert torch_threads(cores) == torch_threads(4 * cores) == 1
-    for task in (train_policy, evaluate_policy):
-
-        def key(**inputs: object) -> str:
-            return task.cache_policy.compute_key(SimpleNamespace(task=task), {"config": {"steps": 10}, "data": "/d", **inputs}, {})
-
-        assert key(side_by_side=1) == key(side_by_side=2)  # how it runs, not what it computes
-        assert key(side_by_side=1, data="/e") != key(side_by_side=1)
