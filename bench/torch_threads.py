@@ -61,6 +61,8 @@ def main() -> None:
     parser.add_argument("--no-busy", action="store_true", help="skip the cases beside a busy process (the slow ones)")
     parser.add_argument("--no-oversubscribed", action="store_true", help="skip the cases with more threads in all than cores (slow)")
     args = parser.parse_args()
+    if args.window < 1 or args.warmup % args.window:
+        parser.error("--window must divide --warmup: a window across the warmup's end would mix untimed updates in")
 
     import torch
 
@@ -69,7 +71,7 @@ def main() -> None:
     profile = load_profile(args.profile)
     cfg = profile.policy
     default = torch.get_num_threads()
-    side_by_side = profile.training_runner.max_workers or 1
+    side_by_side = profile.training_runner.max_workers or os.cpu_count() or 1  # None: Prefect's default pool, a process per core
     cases = [(n, threads, busy) for busy in ((False,) if args.no_busy else (False, True)) for n in sorted({1, side_by_side}) for threads in sorted({default, max(1, default // n), 1}, reverse=True)
              if not (args.no_oversubscribed and n * threads > default)]  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
