@@ -4,6 +4,7 @@ before replanning, and the `policy` flow fills ``policy_eval`` and its MLflow ru
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +33,9 @@ def trained(tmp_path_factory: pytest.TempPathFactory):
     rollouts = read_rollouts(src.path)
     summary = build_dataset(base / "ds", "pick", "touch2robot", rollouts, build_scene("pick", sim), sim, CONFIG)
     logs: list[tuple[int, dict]] = []
-    result = train(Path(summary.root), summary.repo_id, CONFIG, base / "out", on_log=lambda s, m: logs.append((s, m)))
+    # checkpoints every 8 updates: test_a_resumed_training_equals_the_uninterrupted_one resumes from two
+    saving = CONFIG.model_copy(update={"save_freq": 8})
+    result = train(Path(summary.root), summary.repo_id, saving, base / "out", on_log=lambda s, m: logs.append((s, m)))
     return summary, rollouts, result, logs, base
 
 
@@ -51,6 +54,27 @@ def test_training_resumes_from_the_last_checkpoint(trained) -> None:
     more = train(Path(summary.root), summary.repo_id, CONFIG, base / "out", steps=CONFIG.steps + CONFIG.log_freq)
     assert more.resumed_from == CONFIG.steps and more.steps == CONFIG.steps + CONFIG.log_freq
     assert np.isfinite(more.last_loss)
+
+
+@pytest.mark.parametrize("crashed_at", [24, 32])
+def test_a_resumed_training_equals_the_uninterrupted_one(trained, crashed_at: int, tmp_path: Path) -> None:
+    """Resuming from a checkpoint gives the bits of the training that was never stopped, whether it
+    stopped at the end of an epoch (step 24) or within one (step 32): a local cell trained across
+    sessions is the cell trained at once."""
+    from lerobot.datasets import compute_sampler_state
+    from safetensors.torch import load_file
+
+    summary, _, result, _, base = trained
+    sampled = summary.frames - summary.episodes * (CONFIG.horizon - CONFIG.n_action_steps - CONFIG.n_obs_steps + 1)
+    assert compute_sampler_state(crashed_at, sampled, CONFIG.batch_size, 1) == ({"epoch": 2, "start_index": 0} if crashed_at == 24 else {"epoch": 2, "start_index": 64})
+    checkpoints = tmp_path / "resumed" / "checkpoints"
+    shutil.copytree(base / "out" / "checkpoints" / f"{crashed_at:06d}", checkpoints / f"{crashed_at:06d}")
+    (checkpoints / "last").symlink_to(f"{crashed_at:06d}")
+    resumed = train(Path(summary.root), summary.repo_id, CONFIG, tmp_path / "resumed")
+    assert (resumed.resumed_from, resumed.steps) == (crashed_at, CONFIG.steps)
+    whole, pieced = (load_file(Path(r.policy_dir) / "model.safetensors") for r in (result, resumed))
+    assert whole.keys() == pieced.keys()
+    assert [name for name in whole if not torch.equal(whole[name], pieced[name])] == []
 
 
 def test_a_time_budget_ends_training_early_with_a_checkpoint_to_resume_from(trained) -> None:

@@ -170,7 +170,7 @@ def train(
     from lerobot.policies import make_policy, make_pre_post_processors
     from lerobot.scripts.lerobot_train import update_policy
     from lerobot.utils.logging_utils import AverageMeter, MetricsTracker
-    from lerobot.utils.random_utils import set_seed
+    from lerobot.utils.random_utils import get_rng_state, set_rng_state, set_seed
     from lerobot.utils.utils import cycle
 
     from touch2robot.policy.reader import column_views
@@ -207,8 +207,15 @@ def train(
         seed=pipeline.seed,
         absolute_to_relative_idx=dataset.absolute_to_relative_idx,
     )
+    checkpoint_rng = None
     if step:  # continue the data order where the checkpoint left it
-        sampler.load_state_dict(compute_sampler_state(step, len(sampler), pipeline.batch_size, 1))
+        position = compute_sampler_state(step, len(sampler), pipeline.batch_size, 1)
+        sampler.load_state_dict(position)
+        if position["start_index"]:
+            # The first batch starts a data iterator, which draws a seed from torch's RNG: an
+            # uninterrupted run drew it at the epoch's start, before the checkpoint's RNG state was
+            # saved, so a mid-epoch resume puts that state back after its first batch
+            checkpoint_rng = get_rng_state()
     loader = torch.utils.data.DataLoader(
         dataset,
         batch_size=pipeline.batch_size,
@@ -220,6 +227,8 @@ def train(
         prefetch_factor=pipeline.prefetch_factor if pipeline.num_workers > 0 else None,
     )
     policy, optimizer, loader, scheduler = accelerator.prepare(policy, optimizer, loader, scheduler)
+    if step:  # the prepared loader sets the sampler's epoch to its own count of epochs, from 0
+        loader.set_epoch(position["epoch"])  # (huggingface/lerobot#4692)
     meters = {name: AverageMeter(name) for name in ("loss", "grad_norm", "lr", "update_s", "dataloading_s")}
     tracker = MetricsTracker(pipeline.batch_size, dataset.num_frames, dataset.num_episodes, meters, initial_step=step, accelerator=accelerator)
     batches = cycle(loader)
@@ -228,6 +237,9 @@ def train(
     while step < pipeline.steps:
         t0 = time.perf_counter()
         batch = preprocessor(next(batches))
+        if checkpoint_rng is not None:
+            set_rng_state(checkpoint_rng)
+            checkpoint_rng = None
         tracker.dataloading_s = time.perf_counter() - t0
         tracker, _ = update_policy(tracker, policy, batch, optimizer, pipeline.optimizer.grad_clip_norm, accelerator=accelerator, lr_scheduler=scheduler)
         step += 1
