@@ -4,6 +4,10 @@ processes and sees the library code, result storage under the data folder."""
 from __future__ import annotations
 
 import hashlib
+import signal
+import threading
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import lru_cache
 from importlib import util
@@ -75,6 +79,36 @@ def one_torch_thread() -> None:
     import torch
 
     torch.set_num_threads(1)
+
+
+STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
+
+
+@contextmanager
+def checkpoint_on_stop() -> Iterator[Callable[[], bool]]:
+    """A training's way to keep its progress when its process is asked to stop (SIGTERM from
+    ``tasks.runners.stop_pool_workers`` or ``kill``, SIGINT from Ctrl-C): yields a check that
+    turns true on the first such signal, so that the training saves a checkpoint where it is
+    and returns; on leaving, the signal goes to the handler that was there before, so the
+    process still stops as asked. Signals that follow wait for the checkpoint too: a process
+    pool that lost a worker sends SIGTERM to the others (SIGKILL stops at once). A signal the
+    process ignores stays ignored (a process pool's workers ignore SIGINT: their flow run
+    stops them); outside a main thread (a threads runner) no handler can be set and the check stays
+    false."""
+    if threading.current_thread() is not threading.main_thread():
+        yield lambda: False
+        return
+    previous = {signum: handler for signum in STOP_SIGNALS if (handler := signal.getsignal(signum) or signal.SIG_DFL) != signal.SIG_IGN}
+    received: list[int] = []
+    for signum in previous:
+        signal.signal(signum, lambda signum, frame: received.append(signum))
+    try:
+        yield lambda: bool(received)
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        if received:
+            signal.raise_signal(received[0])
 
 
 def stored(task_obj: Any, results: Path) -> Any:

@@ -12,7 +12,7 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_table_artifact
 
-from tasks.common import ALWAYS_RUN, cache_policy, file_digest, one_torch_thread
+from tasks.common import ALWAYS_RUN, cache_policy, checkpoint_on_stop, file_digest, one_torch_thread
 from touch2robot import lake as lake_io
 from touch2robot import tracking
 from touch2robot.policy import PolicyConfig
@@ -49,7 +49,8 @@ def build_policy_dataset(source: dict, config: PolicyConfig, sim: SimConfig, dat
 def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -> dict:
     """Train LeRobot's Diffusion Policy on one dataset with loss and learning rate streamed to
     the task x method's MLflow run. A crashed run resumes from its last LeRobot checkpoint and
-    its MLflow run (the training folder is keyed by the dataset and the training settings)."""
+    its MLflow run (the training folder is keyed by the dataset and the training settings); a
+    stopped one (SIGTERM, Ctrl-C) first saves a checkpoint at the update it reached."""
     import mlflow
 
     from touch2robot.policy.train import train
@@ -71,7 +72,8 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -
         run_file.write_text(run.info.run_id)
         mlflow.log_params({**settings, "dataset_root": dataset["root"], "dataset_episodes": dataset["episodes"], "dataset_frames": dataset["frames"]})
         mlflow.log_metrics({"dataset/render_fps": dataset["render_fps"], "dataset/replay_max_joint_error_rad": dataset["replay_max_joint_error_rad"]})
-        result = train(Path(dataset["root"]), dataset["repo_id"], config, out / "lerobot", on_log=tracking.step_logger(run.info.run_id, "train/"))
+        with checkpoint_on_stop() as stop_requested:
+            result = train(Path(dataset["root"]), dataset["repo_id"], config, out / "lerobot", on_log=tracking.step_logger(run.info.run_id, "train/"), should_stop=stop_requested)
         if result.steps > result.resumed_from:  # a finished folder resumes with no update to time
             mlflow.log_metrics({"train/samples_per_s_total": result.samples_per_s})
         mlflow.log_artifacts(result.policy_dir, "policy")

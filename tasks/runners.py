@@ -39,10 +39,19 @@ def exit_with_parent(parent: int) -> None:
     threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
 
 
-def stop_pool_workers(runner: ProcessPoolTaskRunner, grace_s: float = 10.0) -> None:
+def stop_pool_workers(runner: ProcessPoolTaskRunner, grace_s: float = 30.0) -> None:
     """SIGTERM to a process pool's workers, then SIGKILL to any left after ``grace_s``. For a
     flow run asked to stop (Ctrl-C, SIGTERM): the pool's shutdown waits for running tasks,
-    and a training runs for hours. A stopped training resumes from its last checkpoint."""
+    and a training runs for hours. A policy training saves a checkpoint where it is first
+    (``tasks.common.checkpoint_on_stop``: one update and the save, seconds on a laptop); the
+    others resume from their last one."""
+    # A worker that dies while sending to Prefect's message queue holds the queue's write lock for
+    # good: the flow process's own last message then never leaves, and joining the queue's feeder
+    # thread at exit would hang the command (seen as "Timed out waiting for process-pool message
+    # forwarding to stop", then no exit). The stopped workers' last logs are not worth that.
+    messages = getattr(runner, "_subprocess_message_queue", None)
+    if messages is not None:
+        messages.cancel_join_thread()
     executor = runner._executor
     workers = list((getattr(executor, "_processes", None) or {}).values())
     for worker in workers:

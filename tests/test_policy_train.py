@@ -77,14 +77,14 @@ def test_a_resumed_training_equals_the_uninterrupted_one(trained, crashed_at: in
     assert [name for name in whole if not torch.equal(whole[name], pieced[name])] == []
 
 
-def test_a_time_budget_ends_training_early_with_a_checkpoint_to_resume_from(trained) -> None:
+def test_a_time_budget_or_a_stop_ends_training_early_with_a_checkpoint_to_resume_from(trained) -> None:
     summary, _, _, _, base = trained
     total = 10 * CONFIG.steps
     cut = train(Path(summary.root), summary.repo_id, CONFIG, base / "timed", steps=total, max_seconds=0.0)
     assert cut.steps == 1 and np.isfinite(cut.last_loss)
     assert last_checkpoint(base / "timed") == Path(cut.policy_dir).parent
     logs: list[tuple[int, dict]] = []
-    more = train(Path(summary.root), summary.repo_id, CONFIG, base / "timed", steps=total, on_log=lambda s, m: logs.append((s, m)), max_seconds=0.0)
+    more = train(Path(summary.root), summary.repo_id, CONFIG, base / "timed", steps=total, on_log=lambda s, m: logs.append((s, m)), should_stop=lambda: True)
     assert more.resumed_from == 1 and more.steps == 2
     # the learning rate follows the schedule of ``total`` updates: right after the smoke profile's
     # 2 warm-up updates it is at its peak (a schedule of 2 updates would have decayed it to 0)

@@ -182,19 +182,69 @@ def test_trainings_run_in_worker_processes(probe: dict) -> None:
     assert probe["flow_pid"] not in probe["trains"]["pids"]
 
 
-# Two long "trainings" in a process pool, each writing its worker's pid once it has started.
+CHECKPOINT_ON_STOP = textwrap.dedent(
+    """
+    import os, signal, threading, time
+    from tasks.common import checkpoint_on_stop
+
+    checks = []
+
+    def in_a_thread() -> None:
+        with checkpoint_on_stop() as stop_requested:
+            checks.append(stop_requested())
+
+    thread = threading.Thread(target=in_a_thread)
+    thread.start()
+    thread.join()
+    print("thread", checks, flush=True)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    with checkpoint_on_stop() as stop_requested:
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.2)
+        print("ignored SIGINT", stop_requested(), flush=True)
+        os.kill(os.getpid(), signal.SIGTERM)
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(0.2)
+        print("SIGTERM twice", stop_requested(), flush=True)
+        print("checkpoint", flush=True)
+    print("went on", flush=True)
+    """
+)
+
+
+def test_a_training_asked_to_stop_checkpoints_then_stops_as_asked() -> None:
+    """checkpoint_on_stop: the first SIGTERM turns the check true and the second waits for the
+    checkpoint too; leaving the block delivers SIGTERM as before (the process ends with it). An
+    ignored signal stays ignored, and off the main thread the check stays false."""
+    proc = subprocess.run([sys.executable, "-c", CHECKPOINT_ON_STOP], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert proc.stdout.splitlines() == ["thread [False]", "ignored SIGINT False", "SIGTERM twice True", "checkpoint"], proc.stderr[-3000:]
+    assert proc.returncode == -signal.SIGTERM, proc.stderr[-3000:]
+
+
+# Two long "trainings" in a process pool, each writing its worker's pid once it has started;
+# the second one saves a "checkpoint" when its process is asked to stop, as the policy's does.
 LONG_TRAININGS = textwrap.dedent(
     """
     import os, time
     from pathlib import Path
     from prefect import flow, task
+    from tasks.common import checkpoint_on_stop
     from tasks.runners import ProfileTaskRunner
     from touch2robot.runner_config import RunnerConfig
 
     @task
     def long_training(folder: str, i: int) -> None:
-        Path(folder, f"{os.getpid()}.pid").write_text(str(i))
-        time.sleep(900)
+        if i == 0:
+            Path(folder, f"{os.getpid()}.pid").write_text(str(i))
+            time.sleep(900)
+            return
+        with checkpoint_on_stop() as stop_requested:
+            Path(folder, f"{os.getpid()}.pid").write_text(str(i))
+            while not stop_requested():
+                time.sleep(0.1)
+            time.sleep(2.0)  # the checkpoint takes a while to write
+            Path(folder, "checkpoint").write_text(str(os.getpid()))
+        Path(folder, "went-on").write_text("the stop signal did not end the training's process")
 
     @flow(task_runner=ProfileTaskRunner(RunnerConfig(kind="processes", max_workers=2)))
     def trains(folder: str) -> None:
@@ -219,8 +269,9 @@ RUN_AS_CLI = textwrap.dedent(
 
 def test_a_stopped_flow_run_stops_its_trainings_instead_of_waiting_for_them(tmp_path: Path) -> None:
     """SIGTERM to the flow's command alone (a supervisor, ``kill``): the process pool's shutdown
-    would wait for the running trainings, hours on a laptop. The workers are stopped instead, the
-    command ends with status 128 + 15 and leaves nothing running (its API server neither)."""
+    would wait for the running trainings, hours on a laptop. The workers are stopped instead, a
+    training that checkpoints on a stop (the policy's) does so first, the command ends with
+    status 128 + 15 and leaves nothing running (its API server neither)."""
     (tmp_path / "long_trainings.py").write_text(LONG_TRAININGS)
     (tmp_path / "run.py").write_text(RUN_AS_CLI)
     started = tmp_path / "started"
@@ -251,5 +302,8 @@ def test_a_stopped_flow_run_stops_its_trainings_instead_of_waiting_for_them(tmp_
         while (left := live_processes_with_env("TOUCH2ROBOT_TEST_MARKER", marker)) and time.monotonic() < deadline:
             time.sleep(0.2)
         assert not left, f"still running after the command ended (the workers were {workers}): {left}"
+        checkpointing = next(p.stem for p in started.glob("*.pid") if p.read_text() == "1")
+        assert (started / "checkpoint").read_text() == checkpointing, "the training that checkpoints on a stop did not"
+        assert not (started / "went-on").exists()
     finally:
         kill_group(proc)

@@ -153,12 +153,14 @@ def train(
     steps: int | None = None,
     on_log: Callable[[int, dict[str, float]], None] | None = None,
     max_seconds: float | None = None,
+    should_stop: Callable[[], bool] | None = None,
 ) -> TrainResult:
     """Train (or resume from ``output_dir``'s last checkpoint) LeRobot's Diffusion Policy on a
     LeRobot dataset for ``steps`` updates in total (default ``cfg.steps``). Every ``cfg.log_freq``
     updates ``on_log(step, {"loss", "lr", "grad_norm", "samples_per_s"})`` gets the window's means.
     ``max_seconds`` ends the call early, checkpointed, once that much time has passed (the learning
-    rate keeps the schedule of ``steps`` updates; a later call resumes there). The windows also go
+    rate keeps the schedule of ``steps`` updates; a later call resumes there), and so does
+    ``should_stop()`` turning true (asked after every update). The windows also go
     to ``output_dir/loss_log.jsonl``, so a call on a finished folder (no updates left) still
     reports the training's first and last loss."""
     import torch
@@ -244,8 +246,8 @@ def train(
         tracker, _ = update_policy(tracker, policy, batch, optimizer, pipeline.optimizer.grad_clip_norm, accelerator=accelerator, lr_scheduler=scheduler)
         step += 1
         tracker.step()
-        out_of_time = max_seconds is not None and time.perf_counter() - started >= max_seconds
-        if step % pipeline.log_freq == 0 or step == pipeline.steps or out_of_time:
+        ending = (max_seconds is not None and time.perf_counter() - started >= max_seconds) or (should_stop is not None and should_stop())
+        if step % pipeline.log_freq == 0 or step == pipeline.steps or ending:
             now = time.perf_counter()
             figures = {
                 "loss": tracker.loss.avg,
@@ -261,11 +263,11 @@ def train(
                 on_log(step, figures)
             tracker.reset_averages()
             window_start = now
-        if step % pipeline.save_freq == 0 or step == pipeline.steps or out_of_time:
+        if step % pipeline.save_freq == 0 or step == pipeline.steps or ending:
             ckpt = get_step_checkpoint_dir(output_dir, pipeline.steps, step)
             save_checkpoint(ckpt, step, pipeline, accelerator.unwrap_model(policy), optimizer, scheduler, preprocessor, postprocessor, num_processes=1, batch_size=pipeline.batch_size)
             update_last_checkpoint(ckpt)
-        if out_of_time:
+        if ending:
             break
     seconds = time.perf_counter() - started
     final = last_checkpoint(output_dir)
