@@ -10,7 +10,8 @@ command-line dance, to the same weights as a training never stopped (lerobot-tra
 with another data order: huggingface/lerobot#4692). Table IX sets n_obs_steps, horizon,
 n_action_steps, lr, weight decay, batch size and steps; ``pretrained_backbone_weights=None`` (a
 ResNet-18 from scratch: no downloads); ``drop_n_last_frames`` follows LeRobot's formula for the
-chosen horizon; everything else is LeRobot's default. ``lerobot_train_args`` gives the same run as a ``lerobot-train`` command line.
+chosen horizon; everything else is LeRobot's default. ``lerobot_train_args`` gives the same run
+as a ``lerobot-train`` command line.
 
 One difference in loading: ``touch2robot.policy.reader.column_views`` makes the dataset read its
 observation/action windows from single-column views (LeRobot PR #4314, unreleased in 0.6.1).
