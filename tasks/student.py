@@ -13,7 +13,7 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
-from tasks.common import ALWAYS_RUN, cache_policy, file_digest, one_torch_thread
+from tasks.common import ALWAYS_RUN, cache_policy, checkpoint_on_stop, file_digest, one_torch_thread
 from touch2robot import lake as lake_io
 from touch2robot import tracking
 from touch2robot.settings import DataLayout
@@ -96,7 +96,8 @@ def _clouds(tasks: list[str], teacher: TeacherConfig):
 def train_student(variant: str, config: StudentConfig, teacher: TeacherConfig, dataset: dict, data: str, profile: str) -> dict:
     """Distil one variant on the dataset; curves and checkpoints to its MLflow run, then the
     model (``mlflow.pytorch``, single-tensor serving form with a signature). A killed run
-    resumes from the last checkpoint in its training folder (keyed by config and dataset)."""
+    resumes from the last checkpoint in its training folder (keyed by config and dataset); a
+    stopped one (SIGTERM, Ctrl-C) checkpoints at its current update first, then stops."""
     import mlflow
     import pyarrow as pa
     import pyarrow.compute as pc
@@ -120,7 +121,8 @@ def train_student(variant: str, config: StudentConfig, teacher: TeacherConfig, d
     clouds = _clouds(tasks, teacher)
     tracking.experiment(layout, "student")
     with mlflow.start_run(run_id=run_id):
-        result = train(split("train"), split("val"), clouds, cfg, folder, on_log=tracking.step_logger(run_id))
+        with checkpoint_on_stop() as stop_requested:
+            result = train(split("train"), split("val"), clouds, cfg, folder, on_log=tracking.step_logger(run_id), should_stop=stop_requested)
         mlflow.log_artifact(str(folder / CHECKPOINT), "checkpoints")
         serving = ServingStudent(result.net, clouds.shape[1]).eval()
         window = split("val") if len(split("val")) else split("train")

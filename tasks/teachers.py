@@ -10,7 +10,7 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
-from tasks.common import ALWAYS_RUN, cache_policy, file_digest, one_torch_thread
+from tasks.common import ALWAYS_RUN, cache_policy, checkpoint_on_stop, file_digest, one_torch_thread
 from touch2robot import lake as lake_io
 from touch2robot import tracking
 from touch2robot.settings import DataLayout
@@ -70,7 +70,8 @@ def _run_folder(layout: DataLayout, task_name: str, method: str, config: Teacher
 def train_teacher(task_name: str, method: str, config: TeacherConfig, recordings: list[dict], digest: str, data: str, profile: str) -> dict:
     """Train (or finish training) the teacher of one task and method; metrics stream to one MLflow
     run (stage "teachers"), checkpoints are its artefacts. A killed run resumes from the newest
-    checkpoint: the retry, or the next flow run, continues instead of starting over."""
+    checkpoint: the retry, or the next flow run, continues instead of starting over. A stopped run
+    (SIGTERM, Ctrl-C) first checkpoints the iteration it is in."""
     from touch2robot.teachers.train import make_teacher_env, train
 
     one_torch_thread()
@@ -81,7 +82,8 @@ def train_teacher(task_name: str, method: str, config: TeacherConfig, recordings
     run_id = tracking.resumable_run(layout, "teachers", folder, f"teacher-{task_name}-{method}", tags, _params(config, method))
     vec_env = make_teacher_env(task_name, refs, config, method)
     try:
-        result = train(vec_env, config, folder, run_id, tracking.tracking_uri(layout))
+        with checkpoint_on_stop() as stop_requested:
+            result = train(vec_env, config, folder, run_id, tracking.tracking_uri(layout), should_stop=stop_requested)
     finally:
         vec_env.env.close()
     if result.resumed_from:

@@ -27,7 +27,7 @@ from touch2robot.student.execute import execute
 from touch2robot.student.features import reference_inputs, wrist_residual
 from touch2robot.student.infer import StreamingStudent, StudentOutput, predict_recording
 from touch2robot.student.model import ServingStudent, StudentNet
-from touch2robot.student.train import train, windows_from_table
+from touch2robot.student.train import CHECKPOINT, train, windows_from_table
 from touch2robot.teachers import rollouts as ro
 from touch2robot.teachers.config import TeacherConfig
 from touch2robot.teachers.objective import NUM_ACTIONS, DemoTracking, stack_references
@@ -143,23 +143,43 @@ def trained(dataset: pa.Table, tmp_path_factory: pytest.TempPathFactory):
     torch.set_num_threads(1)
     part = lambda s: windows_from_table(dataset.filter(pc.equal(dataset["split"], s)), TASKS, TINY.history)  # noqa: E731
     folder = tmp_path_factory.mktemp("student-ckpt")
-    return train(part("train"), part("val"), _clouds(), TINY, folder), part, folder
+    logged: dict[int, dict[str, float]] = {}
+    result = train(part("train"), part("val"), _clouds(), TINY, folder, on_log=lambda step, metrics: logged.setdefault(step, metrics))
+    return result, part, folder, logged
 
 
 def test_training_lowers_the_validation_loss(trained) -> None:
-    result, _, _ = trained
+    result, _, _, _ = trained
     assert result.steps == TINY.steps and result.resumed_from == 0
     assert result.final_val["loss"] < 0.7 * result.initial_val["loss"]
     assert [c["step"] for c in result.curve] == [0, 20, 40, 60]
 
 
 def test_training_resumes_from_its_checkpoint(trained, tmp_path: Path) -> None:
-    result, part, folder = trained
+    result, part, folder, _ = trained
     shutil.copytree(folder, tmp_path / "run")
     longer = TINY.model_copy(update={"steps": 80})
     resumed = train(part("train"), part("val"), _clouds(), longer, tmp_path / "run")
     assert resumed.resumed_from == 60 and resumed.steps == 80
     assert resumed.initial_val == result.initial_val and [c["step"] for c in resumed.curve] == [0, 20, 40, 60, 80]
+
+
+def test_a_training_stopped_midway_resumes_to_the_one_never_stopped(trained, tmp_path: Path) -> None:
+    """``should_stop`` at update 25 (between validations and checkpoints): the call checkpoints
+    there and returns; resumed, it ends with the uninterrupted training's weights and logs the
+    same figures, the train loss of the interrupted window included."""
+    result, part, _, logged = trained
+    updates = iter(range(1, TINY.steps + 1))
+    folder = tmp_path / "run"
+    stopped = train(part("train"), part("val"), _clouds(), TINY, folder, should_stop=lambda: next(updates) >= 25)
+    assert stopped.steps == 25 and torch.load(folder / CHECKPOINT, weights_only=False)["step"] == 25
+    resumed_log: dict[int, dict[str, float]] = {}
+    resumed = train(part("train"), part("val"), _clouds(), TINY, folder, on_log=lambda step, metrics: resumed_log.setdefault(step, metrics))
+    assert resumed.resumed_from == 25 and resumed.steps == TINY.steps
+    assert resumed_log == {step: logged[step] for step in (40, 60)}
+    assert resumed.curve == result.curve
+    expected = result.net.state_dict()
+    assert [k for k, v in resumed.net.state_dict().items() if not torch.equal(v, expected[k])] == []
 
 
 def test_streaming_equals_batched_inference(trained, references: dict) -> None:

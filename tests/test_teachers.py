@@ -242,6 +242,29 @@ def test_training_resumes_from_its_newest_readable_checkpoint(refs: dict[str, Re
     assert [it for it, _ in checkpoints(folder)][:2] == [9, 5]
 
 
+@pytest.mark.usefixtures("one_torch_thread")
+def test_a_training_stopped_midway_checkpoints_there_and_resumes(refs: dict[str, References], tmp_path: Path) -> None:
+    """``should_stop`` true after the second of four iterations (no periodic save there: every
+    2nd from 0): the call saves that iteration and returns; the next continues at the third."""
+    layout = DataLayout(tmp_path / "data")
+    with tracking.stage_run(layout, "teachers", "stop-test") as run:
+        run_id = run.info.run_id
+    uri = tracking.tracking_uri(layout)
+    folder = tmp_path / "teacher"
+    vec_env = make_teacher_env("wipe", refs["wipe"], SMALL, "touch2robot")
+    asked = iter(range(1, 5))
+    stopped = train(vec_env, SMALL, folder, run_id, uri, should_stop=lambda: next(asked) == 2)
+    assert (stopped.resumed_from, stopped.iterations, stopped.checkpoint.name) == (0, 2, "model_1.pt")
+    assert [it for it, _ in checkpoints(folder)] == [1, 0]
+    history = lambda: [m.step for m in MlflowClient(uri).get_metric_history(run_id, "Loss/learning_rate")]  # noqa: E731
+    assert history() == [0, 1]
+    resumed = train(vec_env, SMALL, folder, run_id, uri)
+    vec_env.env.close()
+    assert (resumed.resumed_from, resumed.iterations) == (2, 4)
+    assert history() == [0, 1, 2, 3]
+    assert "checkpoints/model_1.pt" in {a.path for a in MlflowClient(uri).list_artifacts(run_id, "checkpoints")}
+
+
 def test_load_latest_without_checkpoints(refs: dict[str, References], tmp_path: Path) -> None:
     from rsl_rl.runners import OnPolicyRunner
 

@@ -142,9 +142,13 @@ def _save(path: Path, state: dict) -> None:
 
 
 def train(train_set: Windows, val_set: Windows, clouds: torch.Tensor, cfg: StudentConfig, folder: Path,
-          on_log: Callable[[int, dict[str, float]], None] | None = None) -> TrainResult:  # fmt: skip
+          on_log: Callable[[int, dict[str, float]], None] | None = None,
+          should_stop: Callable[[], bool] | None = None) -> TrainResult:  # fmt: skip
     """Distil the student on ``train_set`` (``clouds`` (K, P, 3): the objects' surface points),
-    validating on ``val_set``; resumes from ``folder``/checkpoint.pt when present."""
+    validating on ``val_set``; resumes from ``folder``/checkpoint.pt when present. ``should_stop()``
+    (asked after every update) turning true ends the call early, checkpointed where it is: the
+    checkpoint holds every RNG and the unlogged loss sums, so a resumed training is the one that
+    never stopped."""
     if len(train_set) == 0:
         raise ValueError("no training windows: the student dataset has no training rows")
     folder.mkdir(parents=True, exist_ok=True)
@@ -162,13 +166,14 @@ def train(train_set: Windows, val_set: Windows, clouds: torch.Tensor, cfg: Stude
         generator.set_state(state["generator"])
         torch.set_rng_state(state["torch_rng"])
         step, initial, curve = state["step"], state["initial_val"], state["curve"]
+        running = state.get("running", {})
         resumed_from = step
     else:
         step, resumed_from = 0, 0
         initial = validate(net, val_set, clouds, cfg)
         curve = [{"step": 0, **initial}]
         log(0, {f"val/{k}": v for k, v in initial.items()})
-    running: dict[str, float] = {}
+        running: dict[str, float] = {}
     while step < cfg.steps:
         net.train()
         which = torch.randint(len(train_set), (cfg.batch_size,), generator=generator)
@@ -188,9 +193,12 @@ def train(train_set: Windows, val_set: Windows, clouds: torch.Tensor, cfg: Stude
             curve.append({"step": step, **val})
             log(step, {**{f"train/{k}": v / max(n, 1) for k, v in running.items()}, **{f"val/{k}": v for k, v in val.items()}})
             running = {}
-        if step % cfg.checkpoint_interval == 0 or step == cfg.steps:
+        stopping = should_stop is not None and should_stop()
+        if step % cfg.checkpoint_interval == 0 or step == cfg.steps or stopping:
             _save(path, {"net": net.state_dict(), "optimizer": optimizer.state_dict(), "generator": generator.get_state(),
-                         "torch_rng": torch.get_rng_state(), "step": step, "initial_val": initial, "curve": curve})  # fmt: skip
+                         "torch_rng": torch.get_rng_state(), "step": step, "initial_val": initial, "curve": curve, "running": running})  # fmt: skip
+        if stopping:
+            break
     net.eval()
     return TrainResult(net, step, initial, curve[-1], resumed_from, curve)
 

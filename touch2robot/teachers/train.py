@@ -6,8 +6,10 @@ from __future__ import annotations
 
 import pickle
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import torch
 from mlflow.entities import Metric
@@ -127,9 +129,30 @@ class TrainResult:
     checkpoint: Path  # the final checkpoint
 
 
-def train(vec_env: RslVecEnv, config: TeacherConfig, run_dir: Path, run_id: str, tracking_uri: str) -> TrainResult:
+class _Stopped(Exception):
+    """Raised out of rsl-rl's learning loop after an iteration's logging when a stop was asked."""
+
+
+def _stop_after_logging(runner: OnPolicyRunner, should_stop: Callable[[], bool]) -> None:
+    """rsl-rl's ``learn`` has no stop hook; its logger's ``log`` is the last call of every
+    iteration before the periodic save, so a stop is checked there, once that iteration's update
+    and scalars are done."""
+    log = runner.logger.log
+
+    def log_then_check(*args: Any, **kwargs: Any) -> None:
+        log(*args, **kwargs)
+        if should_stop():
+            raise _Stopped
+
+    runner.logger.log = log_then_check
+
+
+def train(vec_env: RslVecEnv, config: TeacherConfig, run_dir: Path, run_id: str, tracking_uri: str,
+          should_stop: Callable[[], bool] | None = None) -> TrainResult:  # fmt: skip
     """Train to ``config.ppo.max_iterations`` iterations, continuing from the newest checkpoint in
-    ``run_dir`` if one exists. Every scalar goes to the MLflow run ``run_id``."""
+    ``run_dir`` if one exists. Every scalar goes to the MLflow run ``run_id``. ``should_stop()``
+    (asked after every iteration) turning true ends the call early with a checkpoint of the
+    iteration just done, from which the next call continues."""
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(config.seed)
@@ -138,10 +161,18 @@ def train(vec_env: RslVecEnv, config: TeacherConfig, run_dir: Path, run_id: str,
     done = load_latest(runner, run_dir) or 0
     runner.current_learning_iteration = done
     remaining = config.ppo.max_iterations - done
+    if should_stop is not None:
+        _stop_after_logging(runner, should_stop)
+    iterations = max(done, config.ppo.max_iterations)
     if remaining > 0:
-        runner.learn(remaining)
+        try:
+            runner.learn(remaining)
+        except _Stopped:
+            iterations = runner.current_learning_iteration + 1
+            runner.save(str(run_dir / f"model_{runner.current_learning_iteration}.pt"))
+            runner.logger.stop_logging_writer()
     final = checkpoints(run_dir)[0][1]
-    return TrainResult(iterations=max(done, config.ppo.max_iterations), resumed_from=done, checkpoint=final)
+    return TrainResult(iterations=iterations, resumed_from=done, checkpoint=final)
 
 
 def load_policy(vec_env: RslVecEnv, config: TeacherConfig, checkpoint: Path) -> torch.nn.Module:
