@@ -220,20 +220,24 @@ def test_teacher_return_rises_with_training(refs: dict[str, References]) -> None
     assert curve[-1] > 1.2 * curve[0]
 
 
-@pytest.mark.usefixtures("one_torch_thread")
-def test_training_resumes_from_its_newest_readable_checkpoint(refs: dict[str, References], tmp_path: Path) -> None:
+@pytest.fixture
+def teacher_run(refs: dict[str, References], tmp_path: Path, one_torch_thread: None):
+    """A Wipe teacher's env, an MLflow run for it and its checkpoint folder."""
     layout = DataLayout(tmp_path / "data")
     with tracking.stage_run(layout, "teachers", "resume-test") as run:
         run_id = run.info.run_id
-    uri = tracking.tracking_uri(layout)
-    folder = tmp_path / "teacher"
     vec_env = make_teacher_env("wipe", refs["wipe"], SMALL, "touch2robot")
+    yield vec_env, run_id, tracking.tracking_uri(layout), tmp_path / "teacher"
+    vec_env.env.close()
+
+
+def test_training_resumes_from_its_newest_readable_checkpoint(teacher_run) -> None:
+    vec_env, run_id, uri, folder = teacher_run
     first = train(vec_env, SMALL, folder, run_id, uri)
     assert (first.resumed_from, first.iterations) == (0, 4)
     (folder / "model_9.pt").write_bytes(b"torn by a kill during torch.save")  # newest, unreadable
     longer = SMALL.model_copy(update={"ppo": SMALL.ppo.model_copy(update={"max_iterations": 6})})
     second = train(vec_env, longer, folder, run_id, uri)
-    vec_env.env.close()
     assert (second.resumed_from, second.iterations) == (4, 6)
     steps = [m.step for m in MlflowClient(uri).get_metric_history(run_id, "Loss/learning_rate")]
     assert steps == list(range(6))  # one continuous curve, no iteration trained twice
@@ -242,16 +246,10 @@ def test_training_resumes_from_its_newest_readable_checkpoint(refs: dict[str, Re
     assert [it for it, _ in checkpoints(folder)][:2] == [9, 5]
 
 
-@pytest.mark.usefixtures("one_torch_thread")
-def test_a_training_stopped_midway_checkpoints_there_and_resumes(refs: dict[str, References], tmp_path: Path) -> None:
+def test_a_training_stopped_midway_checkpoints_there_and_resumes(teacher_run) -> None:
     """``should_stop`` true after the second of four iterations (no periodic save there: every
     2nd from 0): the call saves that iteration and returns; the next continues at the third."""
-    layout = DataLayout(tmp_path / "data")
-    with tracking.stage_run(layout, "teachers", "stop-test") as run:
-        run_id = run.info.run_id
-    uri = tracking.tracking_uri(layout)
-    folder = tmp_path / "teacher"
-    vec_env = make_teacher_env("wipe", refs["wipe"], SMALL, "touch2robot")
+    vec_env, run_id, uri, folder = teacher_run
     asked = iter(range(1, 5))
     stopped = train(vec_env, SMALL, folder, run_id, uri, should_stop=lambda: next(asked) == 2)
     assert (stopped.resumed_from, stopped.iterations, stopped.checkpoint.name) == (0, 2, "model_1.pt")
@@ -259,7 +257,6 @@ def test_a_training_stopped_midway_checkpoints_there_and_resumes(refs: dict[str,
     history = lambda: [m.step for m in MlflowClient(uri).get_metric_history(run_id, "Loss/learning_rate")]  # noqa: E731
     assert history() == [0, 1]
     resumed = train(vec_env, SMALL, folder, run_id, uri)
-    vec_env.env.close()
     assert (resumed.resumed_from, resumed.iterations) == (2, 4)
     assert history() == [0, 1, 2, 3]
     assert "checkpoints/model_1.pt" in {a.path for a in MlflowClient(uri).list_artifacts(run_id, "checkpoints")}
