@@ -5,6 +5,7 @@ before replanning, and the `policy` flow fills ``policy_eval`` and its MLflow ru
 from __future__ import annotations
 
 import shutil
+import types
 from pathlib import Path
 
 import numpy as np
@@ -94,6 +95,28 @@ def test_a_time_budget_or_a_stop_ends_training_early_with_a_checkpoint_to_resume
     again = train(Path(summary.root), summary.repo_id, CONFIG, base / "timed", steps=2)
     assert (again.resumed_from, again.steps) == (2, 2) and np.isnan(again.samples_per_s)
     assert (again.first_loss, again.last_loss) == (cut.first_loss, more.last_loss)
+
+
+def test_training_where_cuda_is_available_logs_the_peak_gpu_memory(trained, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """LeRobot's update step records the peak GPU memory wherever CUDA is available, into a meter
+    the training loop must provide: without it every training on a GPU machine stopped at its first
+    update (seen on an H200). Here the CPU runs the updates and only LeRobot's update step is told
+    that CUDA is there."""
+    from lerobot.scripts import lerobot_train
+
+    class TorchWithCuda(types.ModuleType):
+        cuda = types.SimpleNamespace(is_available=lambda: True, max_memory_allocated=lambda: 3 * 2**30, reset_peak_memory_stats=lambda: None)
+
+        def __getattr__(self, name: str):
+            return getattr(torch, name)
+
+    monkeypatch.setattr(lerobot_train, "torch", TorchWithCuda("torch"))
+    summary = trained[0]
+    logs: list[tuple[int, dict]] = []
+    cfg = CONFIG.model_copy(update={"log_freq": 1})
+    result = train(Path(summary.root), summary.repo_id, cfg, tmp_path / "out", steps=2, on_log=lambda s, m: logs.append((s, m)))
+    assert result.steps == 2
+    assert [m["gpu_mem_gb"] for _, m in logs] == [3.0, 3.0]
 
 
 def test_closed_loop_executes_16_predicted_actions_then_replans(trained) -> None:

@@ -233,7 +233,8 @@ def train(
     policy, optimizer, loader, scheduler = accelerator.prepare(policy, optimizer, loader, scheduler)
     if step:  # the prepared loader sets the sampler's epoch to its own count of epochs, from 0
         loader.set_epoch(position["epoch"])  # (huggingface/lerobot#4692)
-    meters = {name: AverageMeter(name) for name in ("loss", "grad_norm", "lr", "update_s", "dataloading_s")}
+    # update_policy also records the peak GPU memory (gpu_mem_gb) wherever CUDA is available
+    meters = {name: AverageMeter(name) for name in ("loss", "grad_norm", "lr", "update_s", "dataloading_s", "gpu_mem_gb")}
     tracker = MetricsTracker(pipeline.batch_size, dataset.num_frames, dataset.num_episodes, meters, initial_step=step, accelerator=accelerator)
     batches = cycle(loader)
     windows = _loss_log(output_dir, step)
@@ -257,6 +258,8 @@ def train(
                 "grad_norm": tracker.grad_norm.avg,
                 "samples_per_s": tracker.loss.count * pipeline.batch_size / (now - window_start),
             }
+            if tracker.gpu_mem_gb.count:
+                figures["gpu_mem_gb"] = tracker.gpu_mem_gb.val
             windows.append({"step": step, **figures})
             output_dir.mkdir(parents=True, exist_ok=True)
             with open(output_dir / LOSS_LOG, "a") as log:
