@@ -26,6 +26,8 @@ import json
 import time
 from pathlib import Path
 
+import numpy as np
+
 
 def _steady_rate(curve: list[dict], batch_size: int, first_step: int) -> float | None:
     """Updates/s over the logging windows after the first (which holds CUDA start-up, cuDNN's
@@ -79,7 +81,8 @@ def main() -> None:
 
     def log(step: int, figures: dict[str, float]) -> None:
         curve.append({"step": step, **figures})
-        print(f"step {step:>6}: loss {figures['loss']:.4f}, lr {figures['lr']:.2e}, {figures['samples_per_s']:.1f} samples/s", flush=True)
+        print(f"step {step:>6}: loss {figures['loss']:.4f}, lr {figures['lr']:.2e}, {figures['samples_per_s']:.1f} samples/s "
+              f"(per update: {figures['data_s']:.3f} s waiting for data, {figures['update_s']:.3f} s updating)", flush=True)
 
     result = train(Path(ds.root), ds.repo_id, cfg, args.out / "train", on_log=log, max_seconds=args.train_seconds)
     rate = _steady_rate(curve, cfg.batch_size, result.resumed_from) or (result.steps - result.resumed_from) / result.seconds
@@ -87,6 +90,9 @@ def main() -> None:
         "steps": result.steps, "of_steps": cfg.steps, "resumed_from": result.resumed_from, "seconds": round(result.seconds, 1),
         "updates_per_s": round(rate, 3), "samples_per_s_with_start_up": round(result.samples_per_s, 1),
         "hours_for_all_steps": round(cfg.steps / rate / 3600, 2) if rate else None,
+        # a loader-bound training (data wait >> update) gains from more policy.num_workers, not a faster GPU
+        "data_s_per_update": round(float(np.mean([c["data_s"] for c in curve[1:] or curve])), 4) if curve else None,
+        "update_s_per_update": round(float(np.mean([c["update_s"] for c in curve[1:] or curve])), 4) if curve else None,
         "first_loss": result.first_loss, "last_loss": result.last_loss,
         "peak_gpu_memory_gib": round(torch.cuda.max_memory_allocated() / 2**30, 2) if device == "cuda" else None,
     }  # fmt: skip

@@ -159,7 +159,8 @@ def train(
 ) -> TrainResult:
     """Train (or resume from ``output_dir``'s last checkpoint) LeRobot's Diffusion Policy on a
     LeRobot dataset for ``steps`` updates in total (default ``cfg.steps``). Every ``cfg.log_freq``
-    updates ``on_log(step, {"loss", "lr", "grad_norm", "samples_per_s"})`` gets the window's means.
+    updates ``on_log(step, {"loss", "lr", "grad_norm", "samples_per_s", "data_s", "update_s"[, "gpu_mem_gb"]})``
+    gets the window's means (seconds per update waiting for data and updating; peak GPU memory).
     ``max_seconds`` ends the call early, checkpointed, once that much time has passed (the learning
     rate keeps the schedule of ``steps`` updates; a later call resumes there), and so does
     ``should_stop()`` turning true (asked after every update). The windows also go
@@ -257,6 +258,9 @@ def train(
                 "lr": tracker.lr.val,
                 "grad_norm": tracker.grad_norm.avg,
                 "samples_per_s": tracker.loss.count * pipeline.batch_size / (now - window_start),
+                # where an update's time goes: waiting for the loader's batch vs the update itself
+                "data_s": tracker.dataloading_s.avg,
+                "update_s": tracker.update_s.avg,
             }
             if tracker.gpu_mem_gb.count:
                 figures["gpu_mem_gb"] = tracker.gpu_mem_gb.val
