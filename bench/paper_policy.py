@@ -38,6 +38,12 @@ def _steady_rate(curve: list[dict], batch_size: int, first_step: int) -> float |
     return sum(n for n, _ in later) / seconds if later and seconds else None
 
 
+def _steady_mean(curve: list[dict], key: str) -> float | None:
+    """Mean of a per-window figure over the windows after the first (or the first alone)."""
+    windows = curve[1:] or curve
+    return round(float(np.mean([c[key] for c in windows])), 4) if windows else None
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, required=True, help="data folder with a rollouts table (lake/rollouts)")
@@ -91,8 +97,7 @@ def main() -> None:
         "updates_per_s": round(rate, 3), "samples_per_s_with_start_up": round(result.samples_per_s, 1),
         "hours_for_all_steps": round(cfg.steps / rate / 3600, 2) if rate else None,
         # a loader-bound training (data wait >> update) gains from more policy.num_workers, not a faster GPU
-        "data_s_per_update": round(float(np.mean([c["data_s"] for c in curve[1:] or curve])), 4) if curve else None,
-        "update_s_per_update": round(float(np.mean([c["update_s"] for c in curve[1:] or curve])), 4) if curve else None,
+        "data_s_per_update": _steady_mean(curve, "data_s"), "update_s_per_update": _steady_mean(curve, "update_s"),
         "first_loss": result.first_loss, "last_loss": result.last_loss,
         "peak_gpu_memory_gib": round(torch.cuda.max_memory_allocated() / 2**30, 2) if device == "cuda" else None,
     }  # fmt: skip
