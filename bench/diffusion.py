@@ -42,10 +42,24 @@ def _dataset(data: Path | None, cfg, out: Path) -> tuple[Path, str, float]:
         sys.path.insert(0, str(ROOT / "tests"))
         from conftest import scripted_rollout_rows
 
-        lake_io.write_rows(lake, "rollouts", "teacher-pick", scripted_rollout_rows("pick", "bench", 8, 40), partition={"method": "bench"})
+        lake_io.write_rows(
+            lake,
+            "rollouts",
+            "teacher-pick",
+            scripted_rollout_rows("pick", "bench", 8, 40),
+            partition={"method": "bench"},
+        )
     src = sources(lake)[0]
     sim = SimConfig(threads=1)
-    summary = build_dataset(out / "ds", src.task, src.method, read_rollouts(src.path, cfg.max_rollouts), build_scene(src.task, sim), sim, cfg)
+    summary = build_dataset(
+        out / "ds",
+        src.task,
+        src.method,
+        read_rollouts(src.path, cfg.max_rollouts),
+        build_scene(src.task, sim),
+        sim,
+        cfg,
+    )
     print(f"dataset {src.method}-{src.task}: {summary.episodes} episodes, {summary.frames} frames, {cfg.image_size} px x {len(cfg.cameras)} cameras: "
           f"rendering {summary.render_fps:.0f} images/s ({summary.render_fps / len(cfg.cameras):.0f} frames/s)")  # fmt: skip
     return Path(summary.root), summary.repo_id, summary.render_fps
@@ -71,8 +85,10 @@ def _sample_reads(root: Path, repo_id: str, cfg, out: Path, samples: int = 64) -
         for i in idx:
             ds[i]
         ms[name] = 1000 * (time.perf_counter() - start) / samples
-    print(f"sample read: LeRobot 0.6.1 reader {ms['lerobot']:.1f} ms, column views {ms['column views']:.1f} ms, "
-          f"ratio {ms['lerobot'] / ms['column views']:.1f}x")
+    print(
+        f"sample read: LeRobot 0.6.1 reader {ms['lerobot']:.1f} ms, column views {ms['column views']:.1f} ms, "
+        f"ratio {ms['lerobot'] / ms['column views']:.1f}x"
+    )
 
 
 def _wall(cmd: list[str]) -> float:

@@ -70,12 +70,18 @@ def naive_ingest(paths: list[Path], out: Path) -> float:
     for p in paths:
         rows: dict[str, list[dict]] = {}
         with open(p, "rb") as f:
-            for _, channel, message, msg in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages():
+            for _, channel, message, msg in make_reader(
+                f, decoder_factories=[DecoderFactory()]
+            ).iter_decoded_messages():
                 row = {"t": message.log_time / 1e9}
                 for field in ("values", "position", "velocity", "effort", "poses"):
                     if hasattr(msg, field):
                         value = getattr(msg, field)
-                        row[field] = [[q.position.x, q.position.y, q.position.z] for q in value] if field == "poses" else list(value)
+                        row[field] = (
+                            [[q.position.x, q.position.y, q.position.z] for q in value]
+                            if field == "poses"
+                            else list(value)
+                        )
                 if hasattr(msg, "pose"):
                     pos, ori = msg.pose.position, msg.pose.orientation
                     row.update(px=pos.x, py=pos.y, pz=pos.z, qw=ori.w, qx=ori.x, qy=ori.y, qz=ori.z)

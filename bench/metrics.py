@@ -40,9 +40,7 @@ def make_data(n_pairs: int, n_regions: int, seed: int) -> tuple[np.ndarray, np.n
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--pairs", type=float, default=1e8, help="time-region pairs (default 1e8)")
     parser.add_argument("--regions", type=int, default=8)
     parser.add_argument("--repeat", type=int, default=3, help="contact_scores repetitions (best kept)")

@@ -18,15 +18,15 @@ written with the loss curve to ``<out>/summary.json``. It measures; it sets no t
 
 from __future__ import annotations
 
-# the GL backend is chosen when this is imported, before mujoco: keep it first
-from touch2robot.sim import render as _render  # noqa: F401, I001
-
 import argparse
 import json
 import time
 from pathlib import Path
 
 import numpy as np
+
+# the GL backend is chosen when this is imported, before mujoco: keep it first
+from touch2robot.sim import render as _render  # noqa: F401
 
 
 def _steady_rate(curve: list[dict], batch_size: int, first_step: int) -> float | None:
@@ -70,7 +70,9 @@ def main() -> None:
     every = chosen_sources(lake, cfg, [args.task])
     chosen = [(s, refs) for s, refs in every if s.method == args.method]
     if not chosen or chosen[0][1] == []:
-        raise SystemExit(f"{lake / 'rollouts'}: no rollouts of {args.task} x {args.method} to learn from (have {[s.method for s, _ in every]})")
+        raise SystemExit(
+            f"{lake / 'rollouts'}: no rollouts of {args.task} x {args.method} to learn from (have {[s.method for s, _ in every]})"
+        )
     src, references = chosen[0]
     rollouts = read_rollouts(src.path, cfg.max_rollouts, references)
     scene = build_scene(args.task, sim)
@@ -81,17 +83,26 @@ def main() -> None:
     ds = build_dataset(args.out / "dataset", args.task, args.method, rollouts, scene, sim, cfg)
     summary["dataset"] = {"episodes": ds.episodes, "frames": ds.frames, "image_size": cfg.image_size, "render_images_per_s": round(ds.render_fps, 1),
                           "build_s": round(ds.build_s, 1), "replay_max_joint_error_rad": ds.replay_max_joint_error_rad}  # fmt: skip
-    print(f"dataset: {ds.episodes} episodes, {ds.frames} frames at {cfg.image_size} px, {ds.render_fps:.0f} images/s, built in {ds.build_s:.0f} s", flush=True)
+    print(
+        f"dataset: {ds.episodes} episodes, {ds.frames} frames at {cfg.image_size} px, {ds.render_fps:.0f} images/s, built in {ds.build_s:.0f} s",
+        flush=True,
+    )
 
     curve: list[dict] = []
 
     def log(step: int, figures: dict[str, float]) -> None:
         curve.append({"step": step, **figures})
-        print(f"step {step:>6}: loss {figures['loss']:.4f}, lr {figures['lr']:.2e}, {figures['samples_per_s']:.1f} samples/s "
-              f"(per update: {figures['data_s']:.3f} s waiting for data, {figures['update_s']:.3f} s updating)", flush=True)
+        print(
+            f"step {step:>6}: loss {figures['loss']:.4f}, lr {figures['lr']:.2e}, {figures['samples_per_s']:.1f} samples/s "
+            f"(per update: {figures['data_s']:.3f} s waiting for data, {figures['update_s']:.3f} s updating)",
+            flush=True,
+        )
 
     result = train(Path(ds.root), ds.repo_id, cfg, args.out / "train", on_log=log, max_seconds=args.train_seconds)
-    rate = _steady_rate(curve, cfg.batch_size, result.resumed_from) or (result.steps - result.resumed_from) / result.seconds
+    rate = (
+        _steady_rate(curve, cfg.batch_size, result.resumed_from)
+        or (result.steps - result.resumed_from) / result.seconds
+    )
     summary["train"] = {
         "steps": result.steps, "of_steps": cfg.steps, "resumed_from": result.resumed_from, "seconds": round(result.seconds, 1),
         "updates_per_s": round(rate, 3), "samples_per_s_with_start_up": round(result.samples_per_s, 1),

@@ -129,11 +129,15 @@ def main() -> None:
     print(f"Pick scene, N={args.n}, {cfg.substeps} x {cfg.timestep} s substeps per control step ({cfg.control_hz:g} Hz), "
           f"{args.threads} threads, {os.cpu_count()} CPUs, best of {args.rounds} interleaved rounds of {args.steps} control steps")  # fmt: skip
     print(f"copies with a tactile region in contact (over all steps): {contact_share:.0%}")
-    print(f"BatchEnv:                         {best['env']:9.0f} env steps/s  ({best['env'] * cfg.substeps:.0f} physics steps/s)")
+    print(
+        f"BatchEnv:                         {best['env']:9.0f} env steps/s  ({best['env'] * cfg.substeps:.0f} physics steps/s)"
+    )
     print(f"ceiling, rollout per control step:{best['per_step']:9.0f} env steps/s")
     print(f"ceiling, rollout in one call:     {best['one_call']:9.0f} env steps/s")
     print(f"ratio BatchEnv / ceiling: {best['env'] / ceiling:.2f}   (target >= 0.80)")
-    print(f"single-copy control step latency: {np.median(lat) * 1e3:.3f} ms median, {np.percentile(lat, 95) * 1e3:.3f} ms p95")
+    print(
+        f"single-copy control step latency: {np.median(lat) * 1e3:.3f} ms median, {np.percentile(lat, 95) * 1e3:.3f} ms p95"
+    )
 
 
 if __name__ == "__main__":

@@ -25,33 +25,41 @@ import torch
 from mujoco import rollout
 from rsl_rl.runners import OnPolicyRunner
 
-from touch2robot import lake as lake_io  # noqa: E402
-from touch2robot.contacts import ContactsConfig  # noqa: E402
-from touch2robot.contacts.extract import human_contacts  # noqa: E402
-from touch2robot.ingest import ingest_file, recording_rows  # noqa: E402
-from touch2robot.retarget import LEAP_DEFAULT  # noqa: E402
-from touch2robot.retarget.lake import load_hand_motion, write_result  # noqa: E402
-from touch2robot.retarget.retargeter import Retargeter, retarget_motion  # noqa: E402
-from touch2robot.settings import DataLayout  # noqa: E402
-from touch2robot.sim.config import SimConfig  # noqa: E402
-from touch2robot.sim.env import CONTROL_SPEC, BatchEnv  # noqa: E402
-from touch2robot.synth.config import SynthConfig  # noqa: E402
-from touch2robot.synth.generate import RecordingJob, write_recording  # noqa: E402
-from touch2robot.teachers.config import PPOConfig, TeacherConfig  # noqa: E402
-from touch2robot.teachers.objective import stack_references  # noqa: E402
-from touch2robot.teachers.reference import load_reference  # noqa: E402
-from touch2robot.teachers.train import make_teacher_env, runner_config  # noqa: E402
+from touch2robot import lake as lake_io
+from touch2robot.contacts import ContactsConfig
+from touch2robot.contacts.extract import human_contacts
+from touch2robot.ingest import ingest_file, recording_rows
+from touch2robot.retarget import LEAP_DEFAULT
+from touch2robot.retarget.lake import load_hand_motion, write_result
+from touch2robot.retarget.retargeter import Retargeter, retarget_motion
+from touch2robot.settings import DataLayout
+from touch2robot.sim.config import SimConfig
+from touch2robot.sim.env import CONTROL_SPEC, BatchEnv
+from touch2robot.synth.config import SynthConfig
+from touch2robot.synth.generate import RecordingJob, write_recording
+from touch2robot.teachers.config import PPOConfig, TeacherConfig
+from touch2robot.teachers.objective import stack_references
+from touch2robot.teachers.reference import load_reference
+from touch2robot.teachers.train import make_teacher_env, runner_config
 
 
 def demonstration(task: str, root: Path) -> dict:
     """One ingested, contact-labelled, retargeted glove demonstration of ``task``."""
     layout = DataLayout(root)
     config = SynthConfig(tasks=(task,), subjects=1, demos_per_subject=1, replays_per_task=0)
-    ingest_file(write_recording(config, RecordingJob("glove_session", task, 1, 1), layout.recordings, layout.groundtruth), layout.lake)
+    ingest_file(
+        write_recording(config, RecordingJob("glove_session", task, 1, 1), layout.recordings, layout.groundtruth),
+        layout.lake,
+    )
     recording = recording_rows(layout.lake).to_pylist()[0]
     rows, _ = human_contacts(layout.lake, recording, ContactsConfig())
     lake_io.write_rows(layout.lake, "contacts", recording["recording_id"], rows, {"source": "human", "task": task})
-    write_result(layout.lake, retarget_motion(load_hand_motion(layout.lake, recording["recording_id"]), LEAP_DEFAULT, Retargeter(LEAP_DEFAULT)))
+    write_result(
+        layout.lake,
+        retarget_motion(
+            load_hand_motion(layout.lake, recording["recording_id"]), LEAP_DEFAULT, Retargeter(LEAP_DEFAULT)
+        ),
+    )
     return recording
 
 
@@ -142,18 +150,26 @@ def main() -> None:
     best_ceiling = max(ceiling(env, recorder.inputs, args.threads) for _ in range(2))
     env.close()
 
-    print(f"teacher {args.task}/{args.method}: N={args.n}, {args.steps} steps/env/iteration, hidden {args.hidden}, {args.iterations} iterations")
+    print(
+        f"teacher {args.task}/{args.method}: N={args.n}, {args.steps} steps/env/iteration, hidden {args.hidden}, {args.iterations} iterations"
+    )
     print(f"PPO iteration: {1e3 * total / args.iterations:.0f} ms")
     accounted = 0.0
     for key, seconds in sorted(totals.items(), key=lambda kv: -kv[1]):
         accounted += seconds
         print(f"  {key:34s} {1e3 * seconds / args.iterations:8.0f} ms  {100 * seconds / total:5.1f} %")
-    print(f"  {'rest (storage, logging, rsl-rl)':34s} {1e3 * (total - accounted) / args.iterations:8.0f} ms  {100 * (total - accounted) / total:5.1f} %")
+    print(
+        f"  {'rest (storage, logging, rsl-rl)':34s} {1e3 * (total - accounted) / args.iterations:8.0f} ms  {100 * (total - accounted) / total:5.1f} %"
+    )
     collect = total - totals["PPO update"] - totals["returns (GAE)"]
     rate = env_steps / collect
-    print(f"collection: {rate:.0f} env steps/s; physics alone {env_steps / totals['physics (BatchEnv.step)']:.0f} env steps/s")
+    print(
+        f"collection: {rate:.0f} env steps/s; physics alone {env_steps / totals['physics (BatchEnv.step)']:.0f} env steps/s"
+    )
     print(f"ceiling (raw rollout of the same states and commands): {best_ceiling:.0f} env steps/s")
-    print(f"ratio physics / ceiling: {env_steps / totals['physics (BatchEnv.step)'] / best_ceiling:.2f}; collection / ceiling: {rate / best_ceiling:.2f}")
+    print(
+        f"ratio physics / ceiling: {env_steps / totals['physics (BatchEnv.step)'] / best_ceiling:.2f}; collection / ceiling: {rate / best_ceiling:.2f}"
+    )
 
 
 if __name__ == "__main__":

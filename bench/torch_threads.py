@@ -26,7 +26,7 @@ import tempfile
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from diffusion import ROOT, _dataset  # noqa: E402
+from diffusion import ROOT, _dataset
 
 TRAIN = (
     "import sys, torch; torch.set_num_threads(int(sys.argv[6])); from pathlib import Path; from touch2robot.config import load_profile; "
@@ -40,13 +40,19 @@ def _rates(cmds: list[list[str]], after_step: int) -> list[float]:
     """Each command's mean samples/s over its windows that end after ``after_step``, all started at once."""
     env = {**os.environ, "HF_HUB_OFFLINE": "1", "WANDB_MODE": "disabled"}
     env.pop("OMP_NUM_THREADS", None)
-    procs = [subprocess.Popen(c, env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for c in cmds]
+    procs = [
+        subprocess.Popen(c, env=env, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for c in cmds
+    ]
     rates = []
     for p in procs:
         out, err = p.communicate()
         if p.returncode:
             raise RuntimeError(f"a training failed:\n{err[-3000:]}")
-        windows = [float(r) for _, step, r in (line.split() for line in out.splitlines() if line.startswith("RATE ")) if int(step) > after_step]
+        windows = [
+            float(r)
+            for _, step, r in (line.split() for line in out.splitlines() if line.startswith("RATE "))
+            if int(step) > after_step
+        ]
         rates.append(statistics.fmean(windows) if windows else float("nan"))
     return rates
 
@@ -59,7 +65,9 @@ def main() -> None:
     parser.add_argument("--window", type=int, default=10, help="updates per logged samples/s figure (divides --warmup)")
     parser.add_argument("--data", type=Path, default=None, help="data folder with a rollouts table")
     parser.add_argument("--no-busy", action="store_true", help="skip the cases beside a busy process (the slow ones)")
-    parser.add_argument("--no-oversubscribed", action="store_true", help="skip the cases with more threads in all than cores (slow)")
+    parser.add_argument(
+        "--no-oversubscribed", action="store_true", help="skip the cases with more threads in all than cores (slow)"
+    )
     args = parser.parse_args()
     if args.window < 1 or args.warmup % args.window:
         parser.error("--window must divide --warmup: a window across the warmup's end would mix untimed updates in")
@@ -71,7 +79,9 @@ def main() -> None:
     profile = load_profile(args.profile)
     cfg = profile.policy
     default = torch.get_num_threads()
-    side_by_side = profile.training_runner.max_workers or os.cpu_count() or 1  # None: Prefect's default pool, a process per core
+    side_by_side = (
+        profile.training_runner.max_workers or os.cpu_count() or 1
+    )  # None: Prefect's default pool, a process per core
     cases = [(n, threads, busy) for busy in ((False,) if args.no_busy else (False, True)) for n in sorted({1, side_by_side}) for threads in sorted({default, max(1, default // n), 1}, reverse=True)
              if not (args.no_oversubscribed and n * threads > default)]  # fmt: skip
     with tempfile.TemporaryDirectory() as tmp:
@@ -93,7 +103,9 @@ def main() -> None:
             print(f"{n} training(s) x {threads} thread(s){' beside a niced busy process' if busy else '':>28}: "
                   f"{' + '.join(f'{r:.2f}' for r in per)} = {rate[n, threads, busy]:.2f} samples/s, ratio {rate[n, threads, busy] / base:.2f} "
                   f"to {default} threads each")  # fmt: skip
-    print(f"({args.profile}: batch {cfg.batch_size}, {cfg.image_size} px, n_obs {cfg.n_obs_steps}, down_dims {cfg.down_dims}; {os.cpu_count()} cores)")
+    print(
+        f"({args.profile}: batch {cfg.batch_size}, {cfg.image_size} px, n_obs {cfg.n_obs_steps}, down_dims {cfg.down_dims}; {os.cpu_count()} cores)"
+    )
 
 
 if __name__ == "__main__":

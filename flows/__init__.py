@@ -1,6 +1,6 @@
 """Prefect flows: each only sequences tasks. Importing configures the embedded
 environment (Prefect home/results under the data folder) before Prefect is imported."""
 
-from touch2robot.environment import configure
+from app.environment import configure
 
 configure()

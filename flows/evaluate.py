@@ -8,7 +8,14 @@ from pathlib import Path
 from prefect import flow, unmapped
 
 from tasks.common import file_digest, stored
-from tasks.evaluate import evaluate_ratings, evaluate_source, log_evaluation, log_user_study, publish_artefacts, store_table
+from tasks.evaluate import (
+    evaluate_ratings,
+    evaluate_source,
+    log_evaluation,
+    log_user_study,
+    publish_artefacts,
+    store_table,
+)
 from tasks.ingest import refresh_catalog
 from tasks.runners import ProfileTaskRunner
 from touch2robot import tracking
@@ -18,7 +25,9 @@ from touch2robot.settings import DataLayout
 
 
 @flow(name="evaluate", task_runner=ProfileTaskRunner(), log_prints=True)
-def evaluate(profile: str = "smoke", data: str | None = None, ratings: str | None = None, reference: str = REFERENCE_SOURCE) -> dict:
+def evaluate(
+    profile: str = "smoke", data: str | None = None, ratings: str | None = None, reference: str = REFERENCE_SOURCE
+) -> dict:
     """Score every contact source in the lake other than ``reference`` (all its methods and tasks)
     and the user-study ratings (``ratings``: a CSV or a folder of them, default
     ``<data>/recordings/user_study``); rewrite the evaluation tables, refresh the catalog, log
@@ -27,7 +36,10 @@ def evaluate(profile: str = "smoke", data: str | None = None, ratings: str | Non
     lake = str(layout.lake)
     sources = evaluated_sources(layout.lake, reference)
     digests = [folder_digest(source_folders(layout.lake, s, reference)) for s in sources]
-    per_source = [f.result() for f in stored(evaluate_source, layout.results).map(unmapped(lake), sources, unmapped(reference), digests)]
+    per_source = [
+        f.result()
+        for f in stored(evaluate_source, layout.results).map(unmapped(lake), sources, unmapped(reference), digests)
+    ]
     paths = [str(p) for p in ratings_files(Path(ratings) if ratings else layout.user_study)]
     shas = [file_digest(p) for p in paths]
     studies = [f.result() for f in stored(evaluate_ratings, layout.results).map(paths, shas)]
@@ -42,14 +54,24 @@ def evaluate(profile: str = "smoke", data: str | None = None, ratings: str | Non
     uri = tracking.tracking_uri(layout)
     summaries = [r for r in onsets if r["sequence_id"] == ALL]
     # a copy: the task's (possibly cached) result object is not ours to extend
-    runs = dict(stored(log_evaluation, layout.results)(
-        str(layout.root), profile, reference, metrics, summaries, folder_digest([layout.lake / "contacts"]), uri
-    ))
+    runs = dict(
+        stored(log_evaluation, layout.results)(
+            str(layout.root), profile, reference, metrics, summaries, folder_digest([layout.lake / "contacts"]), uri
+        )
+    )
     for path, sha, study in zip(paths, shas, studies, strict=True):
         if study["rows"]:
-            runs[f"user-study-{Path(path).stem}"] = stored(log_user_study, layout.results)(str(layout.root), profile, path, sha, study["rows"], uri)
+            runs[f"user-study-{Path(path).stem}"] = stored(log_user_study, layout.results)(
+                str(layout.root), profile, path, sha, study["rows"], uri
+            )
     publish_artefacts(profile, metrics, summaries, studies, runs)
     overall = {f"{r['source']}/{r['method']}": r["f1"] for r in metrics if r["task"] == ALL and r["region"] == ALL}
     print(f"evaluate: sources {sources}, overall F1 {overall}, {len(studies)} ratings file(s) -> {layout.catalog}")
     skipped = {Path(s["path"]).name: s["error"] for s in studies if s["error"]}
-    return {"sources": sources, "f1": overall, "ratings": [Path(p).name for p in paths], "ratings_skipped": skipped, "runs": runs}
+    return {
+        "sources": sources,
+        "f1": overall,
+        "ratings": [Path(p).name for p in paths],
+        "ratings_skipped": skipped,
+        "runs": runs,
+    }

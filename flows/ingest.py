@@ -38,7 +38,11 @@ def ingest(profile: str = "smoke", data: str | None = None, folder: str | None =
         get_run_logger().warning(line)
     human = stored(extract_human_contacts, layout.results).map(gloves, unmapped(config), unmapped(lake))
     real = stored(extract_real_contacts, layout.results).map(
-        [link.replay for link in links], [link.calibration_id for link in links], [link.reference for link in links], unmapped(config), unmapped(lake)
+        [link.replay for link in links],
+        [link.calibration_id for link in links],
+        [link.reference for link in links],
+        unmapped(config),
+        unmapped(lake),
     )
     summaries = [f.result() for f in human] + [f.result() for f in real]
     refresh_catalog(str(layout.root))

@@ -27,4 +27,11 @@ def pipeline(profile: str = "smoke", data: str | None = None, synthesize: bool =
     distilled = student(profile=profile, data=data)
     evaluated = evaluate(profile=profile, data=data)
     policies = policy(profile=profile, data=data)
-    return {"ingest": ingested, "retarget": retargeted, "teachers": taught, "student": distilled, "evaluate": evaluated, "policy": policies}
+    return {
+        "ingest": ingested,
+        "retarget": retargeted,
+        "teachers": taught,
+        "student": distilled,
+        "evaluate": evaluated,
+        "policy": policies,
+    }

@@ -15,7 +15,9 @@ from touch2robot.settings import DataLayout
 
 
 @flow(name="policy", task_runner=ProfileTaskRunner(section="training_runner"), log_prints=True)
-def policy(profile: str = "smoke", data: str | None = None, tasks: list[str] | None = None, methods: list[str] | None = None) -> list[dict]:
+def policy(
+    profile: str = "smoke", data: str | None = None, tasks: list[str] | None = None, methods: list[str] | None = None
+) -> list[dict]:
     """Datasets -> training -> closed-loop evaluation for every task x method in ``rollouts``
     (narrowed by ``tasks`` / ``methods``, default the profile's ``policy`` section)."""
     layout = DataLayout.from_env(data)
@@ -27,9 +29,13 @@ def policy(profile: str = "smoke", data: str | None = None, tasks: list[str] | N
     root = str(layout.root)
     # replays and evaluation run the physics the rollouts were recorded with (the teachers' sim)
     sim = load_profile(profile).teacher.sim
-    datasets = stored(build_policy_dataset, layout.results).map(sources, unmapped(config), unmapped(sim), unmapped(root))
+    datasets = stored(build_policy_dataset, layout.results).map(
+        sources, unmapped(config), unmapped(sim), unmapped(root)
+    )
     trained = stored(train_policy, layout.results).map(datasets, unmapped(config), unmapped(root), unmapped(profile))
-    evaluated = stored(evaluate_policy, layout.results).map(trained, unmapped(config), unmapped(sim), unmapped(root), unmapped(profile))
+    evaluated = stored(evaluate_policy, layout.results).map(
+        trained, unmapped(config), unmapped(sim), unmapped(root), unmapped(profile)
+    )
     rows = [f.result() for f in evaluated]
     refresh_catalog(root)
     report_policy(profile, rows)

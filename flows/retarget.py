@@ -16,7 +16,9 @@ from touch2robot.settings import DataLayout
 
 def glove_sessions(rows: list[dict]) -> list[dict]:
     """The ingested glove sessions, in file-name order (stable across runs)."""
-    return sorted((r for r in rows if r["status"] == "ingested" and r["kind"] == "glove_session"), key=lambda r: r["file_name"])
+    return sorted(
+        (r for r in rows if r["status"] == "ingested" and r["kind"] == "glove_session"), key=lambda r: r["file_name"]
+    )
 
 
 @flow(name="retarget", task_runner=ProfileTaskRunner(), log_prints=True)
@@ -30,7 +32,9 @@ def retarget(profile: str = "smoke", data: str | None = None) -> dict:
     for r in gloves:
         first.setdefault(r["task"], r["recording_id"])
     render = [first[r["task"]] == r["recording_id"] for r in gloves]
-    futures = stored(retarget_recording, layout.results).map(gloves, unmapped(config), unmapped(str(layout.root)), unmapped(profile), render)
+    futures = stored(retarget_recording, layout.results).map(
+        gloves, unmapped(config), unmapped(str(layout.root)), unmapped(profile), render
+    )
     results = [f.result() for f in futures]
     refresh_catalog(str(layout.root))
     summary = report_retarget(profile, results)

@@ -34,10 +34,15 @@ def student(profile: str = "smoke", data: str | None = None, variants: list[str]
         config.variant(v)  # an unknown variant fails here, before any training
     recordings = []
     for r in glove_sessions(recording_rows(layout.lake).to_pylist()):
-        if lake_io.file_path(layout.lake, "retargeted", r["recording_id"]).is_file() and teacher_rollouts_path(layout.lake, config.teacher_method, r["task"]).is_file():
+        if (
+            lake_io.file_path(layout.lake, "retargeted", r["recording_id"]).is_file()
+            and teacher_rollouts_path(layout.lake, config.teacher_method, r["task"]).is_file()
+        ):
             recordings.append({k: r[k] for k in ("recording_id", "task", "subject")})
     if not recordings:
-        print(f"student: no teacher rollouts of {config.teacher_method} in {layout.lake / 'rollouts'}: run the teachers flow first")
+        print(
+            f"student: no teacher rollouts of {config.teacher_method} in {layout.lake / 'rollouts'}: run the teachers flow first"
+        )
         return {}
     demos: dict[str, list[str]] = {}
     for r in recordings:
@@ -47,14 +52,20 @@ def student(profile: str = "smoke", data: str | None = None, variants: list[str]
     digest = references_digest(layout.lake, recordings) + "".join(file_digest(p) for p in sources)
     root = str(layout.root)
     dataset = stored(augment_dataset, layout.results)(config, teacher, split, recordings, digest, root, profile)
-    trained = [stored(train_student, layout.results).submit(v, config, teacher, dataset, root, profile) for v in variants]
-    rebuilt = [stored(reconstruct, layout.results).submit(t, config, teacher, split, recordings, digest, root) for t in trained]
+    trained = [
+        stored(train_student, layout.results).submit(v, config, teacher, dataset, root, profile) for v in variants
+    ]
+    rebuilt = [
+        stored(reconstruct, layout.results).submit(t, config, teacher, split, recordings, digest, root) for t in trained
+    ]
     trained_rows = [f.result() for f in trained]
     rows = [r for f in rebuilt for r in f.result()]
     refresh_catalog(root)
     report_student(profile, trained_rows, rows)
     for t in trained_rows:
-        print(f"student {t['variant']:12s} val loss {t['initial_val_loss']:.4f} -> {t['final_val_loss']:.4f} ({t['steps']} updates)")
+        print(
+            f"student {t['variant']:12s} val loss {t['initial_val_loss']:.4f} -> {t['final_val_loss']:.4f} ({t['steps']} updates)"
+        )
     for r in rows:
         print(f"student {r['variant']:12s} {r['task']:7s} joint error {r['joint_error_student']:.4f} rad (kinematic input {r['joint_error_kinematic']:.4f}), "
               f"contact F1 {r['contact_f1']:.3f} (predicted {r['predicted_contact_f1']:.3f})")  # fmt: skip

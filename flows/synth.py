@@ -5,8 +5,8 @@ from __future__ import annotations
 from prefect import flow, unmapped
 
 from tasks.common import stored
-from tasks.synth import synthesize_ratings, synthesize_recording
 from tasks.runners import ProfileTaskRunner
+from tasks.synth import synthesize_ratings, synthesize_recording
 from touch2robot.config import load_profile
 from touch2robot.settings import DataLayout
 from touch2robot.synth.generate import plan
@@ -19,7 +19,9 @@ def synth(profile: str = "smoke", data: str | None = None) -> list[str]:
     layout = DataLayout.from_env(data)
     config = load_profile(profile).synth
     write = stored(synthesize_recording, layout.results)
-    futures = write.map(unmapped(config), plan(config), unmapped(str(layout.recordings)), unmapped(str(layout.groundtruth)))
+    futures = write.map(
+        unmapped(config), plan(config), unmapped(str(layout.recordings)), unmapped(str(layout.groundtruth))
+    )
     ratings = stored(synthesize_ratings, layout.results).submit(str(layout.synthetic_ratings), config.seed)
     paths = [f.result() for f in futures]
     ratings.result()

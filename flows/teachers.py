@@ -18,13 +18,17 @@ from touch2robot.settings import DataLayout
 
 
 @flow(name="teachers", task_runner=ProfileTaskRunner(section="training_runner"), log_prints=True)
-def teachers(profile: str = "smoke", data: str | None = None, tasks: list[str] | None = None, methods: list[str] | None = None) -> list[dict]:
+def teachers(
+    profile: str = "smoke", data: str | None = None, tasks: list[str] | None = None, methods: list[str] | None = None
+) -> list[dict]:
     """Train the profile's teachers (``tasks`` x ``methods``, default the profile's ``teacher``
     section) on every retargeted glove demonstration of each task, record their rollouts and
     the kinematic baseline's, refresh the catalog and report success and contact F1."""
     layout = DataLayout.from_env(data)
     config = load_profile(profile).teacher
-    config = config.model_copy(update={"tasks": tuple(tasks or config.tasks), "methods": tuple(methods or config.methods)})
+    config = config.model_copy(
+        update={"tasks": tuple(tasks or config.tasks), "methods": tuple(methods or config.methods)}
+    )
     for m in config.methods:
         config.method(m)  # an unknown method fails here, before any training
     demos: dict[str, list[dict]] = {}
@@ -38,7 +42,9 @@ def teachers(profile: str = "smoke", data: str | None = None, tasks: list[str] |
     trained, replays = [], []
     for task_name, recs in demos.items():
         digest = references_digest(layout.lake, recs)
-        replays.append(stored(kinematic_rollouts, layout.results).submit(task_name, config, recs, digest, root, profile))
+        replays.append(
+            stored(kinematic_rollouts, layout.results).submit(task_name, config, recs, digest, root, profile)
+        )
         for method in config.methods:
             run = stored(train_teacher, layout.results).submit(task_name, method, config, recs, digest, root, profile)
             trained.append(stored(teacher_rollouts, layout.results).submit(run, config, recs, digest, root))
@@ -46,5 +52,7 @@ def teachers(profile: str = "smoke", data: str | None = None, tasks: list[str] |
     refresh_catalog(root)
     table = report_teachers(profile, results)
     for r in table:
-        print(f"teachers: {r['task']:7s} {r['method']:16s} success {r['success_rate']:.2f}  contact F1 {r['contact_f1']:.3f}")
+        print(
+            f"teachers: {r['task']:7s} {r['method']:16s} success {r['success_rate']:.2f}  contact F1 {r['contact_f1']:.3f}"
+        )
     return table

@@ -36,9 +36,7 @@ MSG_DEFINITIONS: dict[str, str] = {
     # Project type: one frame of a tactile array (glove taxels, TwinTac channels, palm FSRs).
     "touch2robot_msgs/msg/TactileArray": _with_deps("std_msgs/Header header\nfloat32[] values\n", _HEADER_DEPS),
     # Project type: the reference-trajectory time being replayed at header.stamp.
-    "touch2robot_msgs/msg/ReferenceTime": _with_deps(
-        "std_msgs/Header header\nfloat64 reference_time\n", _HEADER_DEPS
-    ),
+    "touch2robot_msgs/msg/ReferenceTime": _with_deps("std_msgs/Header header\nfloat64 reference_time\n", _HEADER_DEPS),
     "sensor_msgs/msg/JointState": _with_deps(
         "std_msgs/Header header\nstring[] name\nfloat64[] position\nfloat64[] velocity\nfloat64[] effort\n",
         _HEADER_DEPS,
@@ -80,7 +78,14 @@ class Topic:
 
 GLOVE_TOPICS: tuple[Topic, ...] = (
     Topic("/glove/taxels", "touch2robot_msgs/msg/TactileArray", 100.0, "taxels", N_TAXELS),
-    Topic("/glove/hand_joints", "sensor_msgs/msg/JointState", 60.0, "hand_joints", len(GLOVE_JOINT_NAMES), GLOVE_JOINT_NAMES),
+    Topic(
+        "/glove/hand_joints",
+        "sensor_msgs/msg/JointState",
+        60.0,
+        "hand_joints",
+        len(GLOVE_JOINT_NAMES),
+        GLOVE_JOINT_NAMES,
+    ),
     Topic("/glove/keypoints", "geometry_msgs/msg/PoseArray", 60.0, "hand_keypoints", N_KEYPOINTS),
     Topic("/glove/wrist_pose", "geometry_msgs/msg/PoseStamped", 60.0, "wrist_pose"),
     Topic("/object/pose", "geometry_msgs/msg/PoseStamped", 100.0, "object_pose"),
@@ -107,6 +112,14 @@ TOPICS_BY_KIND: dict[str, tuple[Topic, ...]] = {
 # Metadata keys every recording carries (values are strings, "" when not applicable).
 METADATA_KEYS: dict[str, tuple[str, ...]] = {
     "glove_session": ("kind", "schema_version", "task", "subject"),
-    "robot_replay": ("kind", "schema_version", "task", "subject", "method", "reference_recording", "calibration_recording"),
+    "robot_replay": (
+        "kind",
+        "schema_version",
+        "task",
+        "subject",
+        "method",
+        "reference_recording",
+        "calibration_recording",
+    ),
     "robot_calibration": ("kind", "schema_version"),
 }

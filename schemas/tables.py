@@ -24,6 +24,7 @@ TASKS: tuple[str, ...] = ("pick", "rotate", "wipe", "drawer")
 
 RECORDING_KINDS: tuple[str, ...] = ("glove_session", "robot_replay", "robot_calibration")
 
+
 def _stream(column: str, width: int) -> pa.Schema:
     """A sensor stream of one recording: its id, the time in seconds since the recording's
     first message, and a fixed-width float32 array per sample."""
@@ -205,10 +206,16 @@ user_study = pa.schema(
 retargeted = pa.schema(
     [
         pa.field("recording_id", pa.string(), nullable=False),  # the glove recording
-        pa.field("t", pa.float64(), nullable=False),  # the hand-motion frame's time (s since the recording's first message)
+        pa.field(
+            "t", pa.float64(), nullable=False
+        ),  # the hand-motion frame's time (s since the recording's first message)
         pa.field("position", pa.list_(pa.float32(), 16), nullable=False),  # LEAP joints (rad), LEAP_JOINT_NAMES order
-        pa.field("status", pa.string(), nullable=False),  # ok | solver_error | non_finite | residual | invalid_input (not ok: previous solution held)
-        pa.field("residual", pa.list_(pa.float32(), 4), nullable=False),  # fingertip to scaled human target (m): thumb, index, middle, ring
+        pa.field(
+            "status", pa.string(), nullable=False
+        ),  # ok | solver_error | non_finite | residual | invalid_input (not ok: previous solution held)
+        pa.field(
+            "residual", pa.list_(pa.float32(), 4), nullable=False
+        ),  # fingertip to scaled human target (m): thumb, index, middle, ring
         # robot wrist pose in the world: the LEAP URDF's `base` / MJCF `wrist` body (the mocap target)
         pa.field("px", pa.float64()),
         pa.field("py", pa.float64()),
@@ -245,12 +252,18 @@ rollouts = pa.schema(
         pa.field("step", pa.int32(), nullable=False),  # control step since reset
         pa.field("t", pa.float64(), nullable=False),  # s since the rollout's reset
         pa.field("t_ref", pa.float64(), nullable=False),  # s on the reference recording's clock
-        pa.field("joint_position", pa.list_(pa.float64(), 16), nullable=False),  # LEAP joints (rad), LEAP_JOINT_NAMES order
+        pa.field(
+            "joint_position", pa.list_(pa.float64(), 16), nullable=False
+        ),  # LEAP joints (rad), LEAP_JOINT_NAMES order
         pa.field("joint_velocity", pa.list_(pa.float64(), 16), nullable=False),
         pa.field("joint_target", pa.list_(pa.float64(), 16), nullable=False),  # command applied from this state
         pa.field("reference_joints", pa.list_(pa.float32(), 16), nullable=False),  # kinematic retargeting at t_ref
-        pa.field("wrist_state", pa.list_(pa.float64(), 7), nullable=False),  # observed wrist body pose: px py pz qw qx qy qz
-        pa.field("wrist_pose", pa.list_(pa.float64(), 7), nullable=False),  # commanded wrist (mocap) pose from this state
+        pa.field(
+            "wrist_state", pa.list_(pa.float64(), 7), nullable=False
+        ),  # observed wrist body pose: px py pz qw qx qy qz
+        pa.field(
+            "wrist_pose", pa.list_(pa.float64(), 7), nullable=False
+        ),  # commanded wrist (mocap) pose from this state
         pa.field("object_pose", pa.list_(pa.float64(), 7), nullable=False),  # object body pose in the world
         pa.field("drawer_opening", pa.float64(), nullable=False),  # slide travel (m); 0 for free objects
         pa.field("region_force", pa.list_(pa.float32(), 8), nullable=False),  # N on T1..T4, P1..P4
@@ -307,16 +320,28 @@ student_dataset = pa.schema(
         pa.field("task", pa.string(), nullable=False),
         pa.field("reference_id", pa.string(), nullable=False),  # the glove recording
         pa.field("source_rollout_id", pa.string(), nullable=False),  # the teacher rollout it comes from
-        pa.field("augment", pa.int32(), nullable=False),  # 0 = the teacher rollout unchanged, k > 0 = its k-th noisy copy
+        pa.field(
+            "augment", pa.int32(), nullable=False
+        ),  # 0 = the teacher rollout unchanged, k > 0 = its k-th noisy copy
         pa.field("step", pa.int32(), nullable=False),  # j: the reference frame the command aims at
         pa.field("t_ref", pa.float64(), nullable=False),  # s on the glove recording's clock
-        pa.field("kinematic_joints", pa.list_(pa.float32(), 16), nullable=False),  # input: raw kinematic retargeting (+ noise)
-        pa.field("wrist_pose", pa.list_(pa.float64(), 7), nullable=False),  # input: kinematic robot wrist px py pz qw qx qy qz
+        pa.field(
+            "kinematic_joints", pa.list_(pa.float32(), 16), nullable=False
+        ),  # input: raw kinematic retargeting (+ noise)
+        pa.field(
+            "wrist_pose", pa.list_(pa.float64(), 7), nullable=False
+        ),  # input: kinematic robot wrist px py pz qw qx qy qz
         pa.field("object_pose", pa.list_(pa.float64(), 7), nullable=False),  # input: demonstrated object pose
-        pa.field("preference", pa.list_(pa.bool_(), 8), nullable=False),  # input: human tactile preference, ROBOT_REGIONS
-        pa.field("target_joints", pa.list_(pa.float64(), 16), nullable=False),  # target: teacher joint command (+ the same noise)
+        pa.field(
+            "preference", pa.list_(pa.bool_(), 8), nullable=False
+        ),  # input: human tactile preference, ROBOT_REGIONS
+        pa.field(
+            "target_joints", pa.list_(pa.float64(), 16), nullable=False
+        ),  # target: teacher joint command (+ the same noise)
         pa.field("target_wrist", pa.list_(pa.float64(), 7), nullable=False),  # target: teacher wrist command
-        pa.field("contact", pa.list_(pa.bool_(), 8), nullable=False),  # target: sim contact (region force > threshold) after it
+        pa.field(
+            "contact", pa.list_(pa.bool_(), 8), nullable=False
+        ),  # target: sim contact (region force > threshold) after it
     ]
 )
 
@@ -326,7 +351,9 @@ student_dataset = pa.schema(
 # Files: lake/student_predictions/<method>-<task>.parquet
 student_predictions = pa.schema(
     [
-        pa.field("sequence_id", pa.string(), nullable=False),  # the student rollout ("student-<method>-<task>-<index:03d>")
+        pa.field(
+            "sequence_id", pa.string(), nullable=False
+        ),  # the student rollout ("student-<method>-<task>-<index:03d>")
         pa.field("method", pa.string(), nullable=False),
         pa.field("task", pa.string(), nullable=False),
         pa.field("reference_id", pa.string(), nullable=False),  # the held-out glove recording

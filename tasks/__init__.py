@@ -3,6 +3,6 @@
 Importing this package configures the embedded environment (Prefect home and result
 storage under the data folder) before Prefect itself is imported."""
 
-from touch2robot.environment import configure
+from app.environment import configure
 
 configure()

@@ -9,7 +9,7 @@ import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cache
 from importlib import util
 from pathlib import Path
 from typing import Any
@@ -17,7 +17,7 @@ from typing import Any
 from prefect.cache_policies import INPUTS, NO_CACHE, TASK_SOURCE, CachePolicy
 
 
-@lru_cache(maxsize=None)
+@cache
 def source_digest(module: str) -> str:
     """sha256 over the source files of a module or package (all .py files below it)."""
     spec = util.find_spec(module)
@@ -98,7 +98,11 @@ def checkpoint_on_stop() -> Iterator[Callable[[], bool]]:
     if threading.current_thread() is not threading.main_thread():
         yield lambda: False
         return
-    previous = {signum: handler for signum in STOP_SIGNALS if (handler := signal.getsignal(signum) or signal.SIG_DFL) != signal.SIG_IGN}
+    previous = {
+        signum: handler
+        for signum in STOP_SIGNALS
+        if (handler := signal.getsignal(signum) or signal.SIG_DFL) != signal.SIG_IGN
+    }
     received: list[int] = []
     for signum in previous:
         signal.signal(signum, lambda signum, frame: received.append(signum))

@@ -13,7 +13,8 @@ from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
 from schemas.tables import SCHEMAS
 from tasks.common import ALWAYS_RUN, cache_policy
-from touch2robot import evaluate as ev, tracking
+from touch2robot import evaluate as ev
+from touch2robot import tracking
 from touch2robot.metrics import ALL
 from touch2robot.settings import DataLayout
 
@@ -84,7 +85,9 @@ def store_table(lake: str, table: str, records: list[dict], keys: list[str]) -> 
 def _summary(metrics: pd.DataFrame, onsets: pd.DataFrame) -> pd.DataFrame:
     """One row per (source, method, task incl. '*'): overall contact scores + onset summary."""
     keys = ["source", "method", "task"]
-    m = metrics[metrics["region"] == ALL][[*keys, "n_sequences", "tp", "fp", "fn", "tn", "precision", "recall", "f1", "fpr"]]
+    m = metrics[metrics["region"] == ALL][
+        [*keys, "n_sequences", "tp", "fp", "fn", "tn", "precision", "recall", "f1", "fpr"]
+    ]
     o = onsets[(onsets["sequence_id"] == ALL) & (onsets["region"] == ALL)]
     o = o[[*keys, "error_ms", "n", "n_missing_reference", "n_missing_evaluated"]].rename(
         columns={"error_ms": "onset_error_ms", "n": "onset_pairs",
@@ -148,7 +151,9 @@ def log_evaluation(
                     for png in _timelines(layout.lake, reference, row.source, row.method, row.task, out):
                         mlflow.log_artifact(str(png), "contact_timelines")
                 runs[name] = run.info.run_id
-        with tracking.stage_run(layout, "evaluate", f"summary-{profile}", {"kind": "summary", "profile": profile}) as run:
+        with tracking.stage_run(
+            layout, "evaluate", f"summary-{profile}", {"kind": "summary", "profile": profile}
+        ) as run:
             mlflow.log_artifact(str(ev.plot_metrics_by_method(metrics, onsets, out / "metrics_by_method.png")))
             for name, frame in (("summary", summary), ("contact_metrics", metrics), ("onset_summaries", onsets)):
                 frame.to_csv(out / f"{name}.csv", index=False)
@@ -188,10 +193,14 @@ def log_user_study(data: str, profile: str, path: str, ratings_sha256: str, rows
 
 
 @task(**ALWAYS_RUN)
-def publish_artefacts(profile: str, contact_metrics: list[dict], onset_summaries: list[dict], studies: list[dict], runs: dict[str, str]) -> None:
+def publish_artefacts(
+    profile: str, contact_metrics: list[dict], onset_summaries: list[dict], studies: list[dict], runs: dict[str, str]
+) -> None:
     """Prefect artefacts of the flow run: the metrics table, the user-study table, a summary."""
     summary = _summary(_frame(contact_metrics, "contact_metrics"), _frame(onset_summaries, "onset_errors"))
-    shown = summary[["source", "method", "task", "n_sequences", "precision", "recall", "f1", "fpr", "onset_error_ms", "onset_pairs"]]
+    shown = summary[
+        ["source", "method", "task", "n_sequences", "precision", "recall", "f1", "fpr", "onset_error_ms", "onset_pairs"]
+    ]
     create_table_artifact(
         key="evaluate-contact-metrics",
         table=shown.round(4).astype(object).where(shown.notna(), None).to_dict(orient="records"),
@@ -201,8 +210,23 @@ def publish_artefacts(profile: str, contact_metrics: list[dict], onset_summaries
     if study_rows:
         create_table_artifact(
             key="evaluate-user-study",
-            table=[{k: r[k] for k in ("ratings_file", "synthetic", "question", "n", "median_visual_feedback",
-                                      "median_touch2robot", "statistic", "p", "p_holm")} for r in study_rows],  # fmt: skip
+            table=[
+                {
+                    k: r[k]
+                    for k in (
+                        "ratings_file",
+                        "synthetic",
+                        "question",
+                        "n",
+                        "median_visual_feedback",
+                        "median_touch2robot",
+                        "statistic",
+                        "p",
+                        "p_holm",
+                    )
+                }
+                for r in study_rows
+            ],  # fmt: skip
             description="Paired two-sided Wilcoxon signed-rank per question, Holm-corrected (synthetic = example ratings)",
         )
     lines = [f"# Evaluate ({profile})", "", f"{len(runs)} MLflow runs in experiment `touch2robot/evaluate`.", ""]

@@ -14,7 +14,8 @@ from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
 from schemas.tables import ROBOT_REGIONS
 from tasks.common import ALWAYS_RUN, cache_policy
-from touch2robot import catalog, lake as lake_io, tracking
+from touch2robot import catalog, tracking
+from touch2robot import lake as lake_io
 from touch2robot.contacts import ContactsConfig
 from touch2robot.contacts.extract import human_contacts, replay_contacts
 from touch2robot.ingest import ingest_file, recording_rows, superseded_ids
@@ -53,7 +54,9 @@ def extract_human_contacts(recording: dict, config: ContactsConfig, lake: str) -
 
 @task(cache_policy=cache_policy("touch2robot.contacts", "touch2robot.lake"), persist_result=True,
       task_run_name="real-contacts-{replay[recording_id]}")  # fmt: skip
-def extract_real_contacts(replay: dict, calibration_id: str, reference: dict | None, config: ContactsConfig, lake: str) -> dict:
+def extract_real_contacts(
+    replay: dict, calibration_id: str, reference: dict | None, config: ContactsConfig, lake: str
+) -> dict:
     """Real-robot contacts + TwinTac/FSR thresholds of one replay."""
     rows, thresholds = replay_contacts(Path(lake), replay, calibration_id, reference, config)
     rid = replay["recording_id"]
@@ -74,7 +77,9 @@ def _timeline_png(lake: Path, recording: dict, out: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = pq.read_table(lake_io.file_path(lake, "contacts", recording["recording_id"], {"source": "human", "task": recording["task"]})).to_pandas()
+    rows = pq.read_table(
+        lake_io.file_path(lake, "contacts", recording["recording_id"], {"source": "human", "task": recording["task"]})
+    ).to_pandas()
     fig, ax = plt.subplots(figsize=(9, 3.2))
     for k, region in enumerate(ROBOT_REGIONS):
         r = rows[rows.region == region]
@@ -110,7 +115,9 @@ def report_ingest(data: str, profile: str, results: list[dict], contact_summarie
                 "contact_rows": sum(c["rows"] for c in contact_summaries),
             }
         )
-        mlflow.log_dict({"quarantined": [{"path": q["path"], "reason": q["reason"]} for q in quarantined]}, "quarantined.json")
+        mlflow.log_dict(
+            {"quarantined": [{"path": q["path"], "reason": q["reason"]} for q in quarantined]}, "quarantined.json"
+        )
         thresholds = {c["recording_id"]: c["thresholds"] for c in contact_summaries if "thresholds" in c}
         mlflow.log_dict(thresholds, "glove_thresholds.json")
         for rid, rows in thresholds.items():
@@ -119,11 +126,22 @@ def report_ingest(data: str, profile: str, results: list[dict], contact_summarie
         with tempfile.TemporaryDirectory() as tmp:
             for rid in thresholds:
                 if rid in recordings:
-                    mlflow.log_artifact(str(_timeline_png(layout.lake, recordings[rid], Path(tmp))), "contact_timelines")
+                    mlflow.log_artifact(
+                        str(_timeline_png(layout.lake, recordings[rid], Path(tmp))), "contact_timelines"
+                    )
         run_id = run.info.run_id
     create_table_artifact(
         key="ingest-files",
-        table=[{"file": Path(r["path"]).name, "status": r["status"], "kind": r["kind"], "rows": r["rows"], "reason": r["reason"]} for r in results],
+        table=[
+            {
+                "file": Path(r["path"]).name,
+                "status": r["status"],
+                "kind": r["kind"],
+                "rows": r["rows"],
+                "reason": r["reason"],
+            }
+            for r in results
+        ],
         description="Files seen by the ingest flow run",
     )
     create_markdown_artifact(

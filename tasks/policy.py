@@ -28,7 +28,12 @@ def _digest(payload: dict) -> str:
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:12]
 
 
-@task(cache_policy=cache_policy(*POLICY_MODULES), persist_result=True, retries=1, task_run_name="dataset-{source[method]}-{source[task]}")
+@task(
+    cache_policy=cache_policy(*POLICY_MODULES),
+    persist_result=True,
+    retries=1,
+    task_run_name="dataset-{source[method]}-{source[task]}",
+)
 def build_policy_dataset(source: dict, config: PolicyConfig, sim: SimConfig, data: str) -> dict:
     """Replay one task x method's rollouts (with ``sim``, the physics they were recorded with) and
     write its LeRobot dataset under <data>/datasets (the source's ``digest``, the rollouts file's
@@ -39,13 +44,19 @@ def build_policy_dataset(source: dict, config: PolicyConfig, sim: SimConfig, dat
     layout = DataLayout.from_env(data)
     rollouts = read_rollouts(Path(source["path"]), config.max_rollouts, source["references"])
     root = layout.datasets / f"{source['method']}-{source['task']}"
-    summary = build_dataset(root, source["task"], source["method"], rollouts, build_scene(source["task"], sim), sim, config)
+    summary = build_dataset(
+        root, source["task"], source["method"], rollouts, build_scene(source["task"], sim), sim, config
+    )
     get_run_logger().info("%s: %d episodes, %d frames, rendering %.0f images/s, replay error max %.2e rad",
                           root.name, summary.episodes, summary.frames, summary.render_fps, summary.replay_max_joint_error_rad)  # fmt: skip
     return {**source, **summary.__dict__}
 
 
-@task(cache_policy=cache_policy(*POLICY_MODULES), persist_result=True, task_run_name="train-{dataset[method]}-{dataset[task]}")
+@task(
+    cache_policy=cache_policy(*POLICY_MODULES),
+    persist_result=True,
+    task_run_name="train-{dataset[method]}-{dataset[task]}",
+)
 def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -> dict:
     """Train LeRobot's Diffusion Policy on one dataset with loss and learning rate streamed to
     the task x method's MLflow run. A crashed run resumes from its last LeRobot checkpoint and
@@ -57,12 +68,23 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -
 
     one_torch_thread()
     layout = DataLayout.from_env(data)
-    settings = config.model_dump(mode="json", exclude={*DATASET_FIELDS, "eval_episodes", "eval_batch", "eval_seed", "object_noise_m", "video_episodes"})
-    key = _digest({"dataset": dataset["digest"], "references": dataset["references"], "frames": dataset["frames"], **settings})
+    settings = config.model_dump(
+        mode="json",
+        exclude={*DATASET_FIELDS, "eval_episodes", "eval_batch", "eval_seed", "object_noise_m", "video_episodes"},
+    )
+    key = _digest(
+        {"dataset": dataset["digest"], "references": dataset["references"], "frames": dataset["frames"], **settings}
+    )
     out = layout.policies / f"{dataset['method']}-{dataset['task']}-{key}"
     out.mkdir(parents=True, exist_ok=True)
     run_file = out / "mlflow_run_id"
-    tags = {"profile": profile, "task": dataset["task"], "method": dataset["method"], "origin": dataset["origin"], "pretrained_backbone": TAGS_NOTE}
+    tags = {
+        "profile": profile,
+        "task": dataset["task"],
+        "method": dataset["method"],
+        "origin": dataset["origin"],
+        "pretrained_backbone": TAGS_NOTE,
+    }
     tracking.experiment(layout, "policy")
     if run_file.exists():
         run_ctx = mlflow.start_run(run_id=run_file.read_text().strip())
@@ -70,17 +92,40 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -
         run_ctx = tracking.stage_run(layout, "policy", f"{dataset['method']}-{dataset['task']}", tags)
     with run_ctx as run:
         run_file.write_text(run.info.run_id)
-        mlflow.log_params({**settings, "dataset_root": dataset["root"], "dataset_episodes": dataset["episodes"], "dataset_frames": dataset["frames"]})
-        mlflow.log_metrics({"dataset/render_fps": dataset["render_fps"], "dataset/replay_max_joint_error_rad": dataset["replay_max_joint_error_rad"]})
+        mlflow.log_params(
+            {
+                **settings,
+                "dataset_root": dataset["root"],
+                "dataset_episodes": dataset["episodes"],
+                "dataset_frames": dataset["frames"],
+            }
+        )
+        mlflow.log_metrics(
+            {
+                "dataset/render_fps": dataset["render_fps"],
+                "dataset/replay_max_joint_error_rad": dataset["replay_max_joint_error_rad"],
+            }
+        )
         with checkpoint_on_stop() as stop_requested:
-            result = train(Path(dataset["root"]), dataset["repo_id"], config, out / "lerobot", on_log=tracking.step_logger(run.info.run_id, "train/"), should_stop=stop_requested)
+            result = train(
+                Path(dataset["root"]),
+                dataset["repo_id"],
+                config,
+                out / "lerobot",
+                on_log=tracking.step_logger(run.info.run_id, "train/"),
+                should_stop=stop_requested,
+            )
         if result.steps > result.resumed_from:  # a finished folder resumes with no update to time
             mlflow.log_metrics({"train/samples_per_s_total": result.samples_per_s})
         mlflow.log_artifacts(result.policy_dir, "policy")
     return {**dataset, **result.__dict__, "mlflow_run": run.info.run_id}
 
 
-@task(cache_policy=cache_policy(*POLICY_MODULES), persist_result=True, task_run_name="evaluate-{trained[method]}-{trained[task]}")
+@task(
+    cache_policy=cache_policy(*POLICY_MODULES),
+    persist_result=True,
+    task_run_name="evaluate-{trained[method]}-{trained[task]}",
+)
 def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: str, profile: str) -> dict:
     """Closed-loop episodes of the trained policy; one ``policy_eval`` row (lake) and success
     metrics plus a few episode videos in the task x method's MLflow run."""
@@ -95,7 +140,16 @@ def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: s
     layout = DataLayout.from_env(data)
     scene = build_scene(trained["task"], sim)
     rollouts = read_rollouts(Path(trained["path"]), config.max_rollouts, trained["references"])
-    outcome = evaluate(Path(trained["policy_dir"]), Path(trained["root"]), trained["repo_id"], scene, sim, rollouts, config, config.video_episodes)
+    outcome = evaluate(
+        Path(trained["policy_dir"]),
+        Path(trained["root"]),
+        trained["repo_id"],
+        scene,
+        sim,
+        rollouts,
+        config,
+        config.video_episodes,
+    )
     result, fit, replay = outcome.closed_loop, outcome.fit, outcome.replay
     low, high = result.wilson
     row = {
@@ -108,7 +162,9 @@ def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: s
         "hold_joint_err_rad": fit.hold_joint_err_rad, "hold_wrist_err_mm": fit.hold_wrist_err_mm,
         "episode_steps": result.steps, "replans": result.replans, "mlflow_run": trained["mlflow_run"],
     }  # fmt: skip
-    lake_io.write_rows(layout.lake, "policy_eval", f"{trained['method']}-{trained['task']}", pa.Table.from_pylist([row]))
+    lake_io.write_rows(
+        layout.lake, "policy_eval", f"{trained['method']}-{trained['task']}", pa.Table.from_pylist([row])
+    )
     tracking.experiment(layout, "policy")
     with mlflow.start_run(run_id=trained["mlflow_run"]):
         mlflow.log_metrics({"eval/success_rate": row["success_rate"], "eval/ci_low": low, "eval/ci_high": high, "eval/mean_progress": row["mean_progress"],
@@ -125,13 +181,17 @@ def report_policy(profile: str, rows: list[dict]) -> list[dict]:
     """A Prefect table of the success rates per task x method."""
     create_table_artifact(
         key="policy-success",
-        table=[{k: (round(v, 3) if isinstance(v, float) else v) for k, v in r.items() if k != "mlflow_run"} for r in rows],
+        table=[
+            {k: (round(v, 3) if isinstance(v, float) else v) for k, v in r.items() if k != "mlflow_run"} for r in rows
+        ],
         description=f"Diffusion Policy closed-loop success per task x method ({profile})",
     )
     return rows
 
 
-def rollout_sources(data: str, config: PolicyConfig, tasks: list[str] | None = None, methods: list[str] | None = None) -> list[dict]:
+def rollout_sources(
+    data: str, config: PolicyConfig, tasks: list[str] | None = None, methods: list[str] | None = None
+) -> list[dict]:
     """The rollouts file of every task x method (most preferred of ``config.origins``, narrowed to
     ``tasks`` / ``methods``), with its content hash and, with ``config.same_demonstrations``, the
     demonstrations all of the task's methods follow (``references``; None = every rollout)."""
@@ -141,7 +201,18 @@ def rollout_sources(data: str, config: PolicyConfig, tasks: list[str] | None = N
     out = []
     for s, references in chosen_sources(layout.lake, config, tasks, methods):
         if references == []:
-            get_run_logger().warning("policy: the methods of %s follow no demonstration in common; %s is skipped", s.task, s.method)
+            get_run_logger().warning(
+                "policy: the methods of %s follow no demonstration in common; %s is skipped", s.task, s.method
+            )
             continue
-        out.append({"task": s.task, "method": s.method, "origin": s.origin, "path": str(s.path), "digest": file_digest(s.path), "references": references})
+        out.append(
+            {
+                "task": s.task,
+                "method": s.method,
+                "origin": s.origin,
+                "path": str(s.path),
+                "digest": file_digest(s.path),
+                "references": references,
+            }
+        )
     return out

@@ -37,7 +37,10 @@ def _summary(result: RetargetResult) -> dict:
         "residual_mean_mm": float(1e3 * ok.mean()) if ok.size else float("nan"),
         "residual_p95_mm": float(1e3 * np.percentile(ok, 95)) if ok.size else float("nan"),
         "residual_max_mm": float(1e3 * ok.max()) if ok.size else float("nan"),
-        **{f"residual_mean_{f}_mm": float(1e3 * ok[:, i].mean()) if ok.size else float("nan") for i, f in enumerate(TIP_NAMES)},
+        **{
+            f"residual_mean_{f}_mm": float(1e3 * ok[:, i].mean()) if ok.size else float("nan")
+            for i, f in enumerate(TIP_NAMES)
+        },
         "solve_ms_mean": float(1e3 * result.solve_time.mean()),
         "solve_ms_p95": float(1e3 * np.percentile(result.solve_time, 95)),
         "max_joint_step_rad": float(step.max()),
@@ -79,11 +82,18 @@ def retarget_recording(recording: dict, config: RetargetConfig, data: str, profi
             from touch2robot.retarget.render import comparison_png
 
             with tempfile.TemporaryDirectory() as tmp:
-                png = comparison_png(motion, result, Path(tmp) / f"retarget_{name}.png", kinematics=retargeter.kinematics)
+                png = comparison_png(
+                    motion, result, Path(tmp) / f"retarget_{name}.png", kinematics=retargeter.kinematics
+                )
                 mlflow.log_artifact(str(png), "comparison")
         run_id = run.info.run_id
     if summary["failed_frames"]:
-        get_run_logger().warning("%s: %d of %d frames failed and hold the previous solution", name, summary["failed_frames"], summary["frames"])
+        get_run_logger().warning(
+            "%s: %d of %d frames failed and hold the previous solution",
+            name,
+            summary["failed_frames"],
+            summary["frames"],
+        )
     return {**base, "error": "", "mlflow_run": run_id, **summary}
 
 
@@ -108,7 +118,18 @@ def report_retarget(profile: str, results: list[dict]) -> dict:
             {
                 k: (round(v, 2) if isinstance(v, float) else v)
                 for k, v in r.items()
-                if k in ("file", "task", "frames", "failed_frames", "residual_mean_mm", "residual_p95_mm", "max_joint_step_rad", "solve_ms_mean", "error")
+                if k
+                in (
+                    "file",
+                    "task",
+                    "frames",
+                    "failed_frames",
+                    "residual_mean_mm",
+                    "residual_p95_mm",
+                    "max_joint_step_rad",
+                    "solve_ms_mean",
+                    "error",
+                )
             }
             for r in results
         ],

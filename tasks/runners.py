@@ -75,11 +75,15 @@ def build_task_runner(config: RunnerConfig) -> TaskRunner[Any]:
     if config.kind == "threads":
         return ThreadPoolTaskRunner(max_workers=config.max_workers)
     if config.kind == "processes":
-        return ProcessPoolTaskRunner(max_workers=config.max_workers, initializer=exit_with_parent, initargs=(os.getpid(),))
+        return ProcessPoolTaskRunner(
+            max_workers=config.max_workers, initializer=exit_with_parent, initargs=(os.getpid(),)
+        )
     try:
         from prefect_dask import DaskTaskRunner
     except ImportError as e:  # the optional extra is missing
-        raise ImportError("runner kind 'dask' needs the dask extra: `uv sync --extra dask` (prefect-dask, distributed)") from e
+        raise ImportError(
+            "runner kind 'dask' needs the dask extra: `uv sync --extra dask` (prefect-dask, distributed)"
+        ) from e
     if config.dask_address:
         if not get_current_settings().api.url:
             # workers on other machines cannot reach this process's ephemeral API server
@@ -125,7 +129,9 @@ class ProfileTaskRunner(TaskRunner[PrefectFuture[Any]]):
     pins a runner regardless of the profile (tests, notebooks). A run without a ``profile``
     parameter gets the section's default."""
 
-    def __init__(self, config: RunnerConfig | None = None, parameter: str = "profile", section: RunnerSection = "runner") -> None:
+    def __init__(
+        self, config: RunnerConfig | None = None, parameter: str = "profile", section: RunnerSection = "runner"
+    ) -> None:
         super().__init__()
         self._config = config
         self._parameter = parameter
@@ -167,11 +173,17 @@ class ProfileTaskRunner(TaskRunner[PrefectFuture[Any]]):
         with _share_ephemeral_api():
             return self._inner.submit(task, parameters, wait_for, dependencies)
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc_value: BaseException | None, traceback: TracebackType | None) -> None:
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc_value: BaseException | None, traceback: TracebackType | None
+    ) -> None:
         inner, self._inner = self._inner, None
         try:
             # a stop (Ctrl-C, SIGTERM: Prefect's TerminationSignal, SystemExit), not a failed task
-            if isinstance(inner, ProcessPoolTaskRunner) and exc_type is not None and not issubclass(exc_type, Exception):
+            if (
+                isinstance(inner, ProcessPoolTaskRunner)
+                and exc_type is not None
+                and not issubclass(exc_type, Exception)
+            ):
                 stop_pool_workers(inner)
             if inner is not None:
                 inner.__exit__(exc_type, exc_value, traceback)

@@ -20,7 +20,14 @@ from touch2robot.settings import DataLayout
 from touch2robot.student.config import StudentConfig
 from touch2robot.teachers.config import TeacherConfig
 
-STUDENT_MODULES = ("touch2robot.student", "touch2robot.teachers", "touch2robot.sim", "touch2robot.scenes", "touch2robot.lake", "touch2robot.metrics")
+STUDENT_MODULES = (
+    "touch2robot.student",
+    "touch2robot.teachers",
+    "touch2robot.sim",
+    "touch2robot.scenes",
+    "touch2robot.lake",
+    "touch2robot.metrics",
+)
 
 
 def teacher_rollouts_path(lake: Path, method: str, task_name: str) -> Path:
@@ -34,16 +41,34 @@ def _sha(payload: object) -> str:
 def _references(layout: DataLayout, recordings: list[dict], teacher: TeacherConfig) -> dict:
     from touch2robot.teachers.reference import load_reference
 
-    return {r["recording_id"]: load_reference(layout.lake, r, teacher.sim.control_hz, teacher.contact_margin_m) for r in recordings}
+    return {
+        r["recording_id"]: load_reference(layout.lake, r, teacher.sim.control_hz, teacher.contact_margin_m)
+        for r in recordings
+    }
 
 
 def _split_tags(split: dict) -> dict[str, str]:
-    held = "in-sample (no task had a demonstration to hold out: every demonstration is trained on and reconstructed)" if split["in_sample"] else "held-out demonstrations"
-    return {"held_out": held, **{f"demos_{role}": str(sum(len(v) for v in split[role].values())) for role in ("train", "val", "held_out")}}
+    held = (
+        "in-sample (no task had a demonstration to hold out: every demonstration is trained on and reconstructed)"
+        if split["in_sample"]
+        else "held-out demonstrations"
+    )
+    return {
+        "held_out": held,
+        **{f"demos_{role}": str(sum(len(v) for v in split[role].values())) for role in ("train", "val", "held_out")},
+    }
 
 
 @task(cache_policy=cache_policy(*STUDENT_MODULES), persist_result=True, retries=1, task_run_name="student-dataset")
-def augment_dataset(config: StudentConfig, teacher: TeacherConfig, split: dict, recordings: list[dict], digest: str, data: str, profile: str) -> dict:
+def augment_dataset(
+    config: StudentConfig,
+    teacher: TeacherConfig,
+    split: dict,
+    recordings: list[dict],
+    digest: str,
+    data: str,
+    profile: str,
+) -> dict:
     """Pair the teacher rollouts of the training and validation demonstrations with their
     demonstrations, augment the training ones to ``config.augmented_rollouts`` (balanced over
     the tasks) and write ``student_dataset`` (one file per task); the manifest goes to MLflow."""
@@ -53,7 +78,11 @@ def augment_dataset(config: StudentConfig, teacher: TeacherConfig, split: dict, 
     from touch2robot.student.augment import augment, paired_sequences, per_task_counts
 
     layout = DataLayout.from_env(data)
-    trainable = [r for r in recordings if any(r["recording_id"] in ids for role in ("train", "val") for ids in split[role].values())]
+    trainable = [
+        r
+        for r in recordings
+        if any(r["recording_id"] in ids for role in ("train", "val") for ids in split[role].values())
+    ]
     refs = _references(layout, trainable, teacher)
     tasks = sorted({t for role in ("train", "val") for t, ids in split[role].items() if ids})
     counts = per_task_counts(config.augmented_rollouts, [t for t in tasks if split["train"].get(t)])
@@ -63,7 +92,9 @@ def augment_dataset(config: StudentConfig, teacher: TeacherConfig, split: dict, 
     for task_name in tasks:
         source = teacher_rollouts_path(layout.lake, config.teacher_method, task_name)
         if not source.is_file():
-            raise FileNotFoundError(f"student: no teacher rollouts of {config.teacher_method}/{task_name} at {source}: run the teachers flow first")
+            raise FileNotFoundError(
+                f"student: no teacher rollouts of {config.teacher_method}/{task_name} at {source}: run the teachers flow first"
+            )
         seqs = paired_sequences(pq.read_table(source), refs, teacher.sim.contact_threshold_n)
         train = [s for s in seqs if s.reference_id in split["train"].get(task_name, [])]
         val = [s for s in seqs if s.reference_id in split["val"].get(task_name, [])]
@@ -77,10 +108,22 @@ def augment_dataset(config: StudentConfig, teacher: TeacherConfig, split: dict, 
             "noisy_copies": max(count - len(train), 0), "rows": table.num_rows, "file": path.name, "sha256": file_digest(path),
         }  # fmt: skip
     with tracking.stage_run(layout, "student", "dataset", {"profile": profile, **_split_tags(split)}) as run:
-        mlflow.log_params({"augmented_rollouts": config.augmented_rollouts, "joint_noise_std": config.joint_noise_std, "seed": config.seed})
+        mlflow.log_params(
+            {
+                "augmented_rollouts": config.augmented_rollouts,
+                "joint_noise_std": config.joint_noise_std,
+                "seed": config.seed,
+            }
+        )
         mlflow.log_dict(manifest, "manifest.json")
     get_run_logger().info("student dataset: %s", {t: m["rows"] for t, m in manifest["tasks"].items()})
-    return {"paths": paths, "tasks": tasks, "digest": _sha([manifest["tasks"][t]["sha256"] for t in tasks]), "mlflow_run": run.info.run_id, "split": split}
+    return {
+        "paths": paths,
+        "tasks": tasks,
+        "digest": _sha([manifest["tasks"][t]["sha256"] for t in tasks]),
+        "mlflow_run": run.info.run_id,
+        "split": split,
+    }
 
 
 def _clouds(tasks: list[str], teacher: TeacherConfig):
@@ -92,8 +135,12 @@ def _clouds(tasks: list[str], teacher: TeacherConfig):
     return torch.as_tensor(np.stack([build_scene(t, teacher.sim).point_cloud for t in tasks]), dtype=torch.float32)
 
 
-@task(cache_policy=cache_policy(*STUDENT_MODULES), persist_result=True, retries=1, task_run_name="student-train-{variant}")
-def train_student(variant: str, config: StudentConfig, teacher: TeacherConfig, dataset: dict, data: str, profile: str) -> dict:
+@task(
+    cache_policy=cache_policy(*STUDENT_MODULES), persist_result=True, retries=1, task_run_name="student-train-{variant}"
+)
+def train_student(
+    variant: str, config: StudentConfig, teacher: TeacherConfig, dataset: dict, data: str, profile: str
+) -> dict:
     """Distil one variant on the dataset; curves and checkpoints to its MLflow run, then the
     model (``mlflow.pytorch``, single-tensor serving form with a signature). A killed run
     resumes from the last checkpoint in its training folder (keyed by config and dataset); a
@@ -113,7 +160,13 @@ def train_student(variant: str, config: StudentConfig, teacher: TeacherConfig, d
     cfg = config.variant(variant)
     dump = cfg.model_dump(mode="json", exclude={"ablations"})
     folder = layout.checkpoints / "student" / f"{variant}-{_sha([dump, dataset['digest']])[:12]}"
-    tags = {"profile": profile, "variant": variant, "checkpoints": str(folder), "dataset_run": dataset["mlflow_run"], **_split_tags(dataset["split"])}
+    tags = {
+        "profile": profile,
+        "variant": variant,
+        "checkpoints": str(folder),
+        "dataset_run": dataset["mlflow_run"],
+        **_split_tags(dataset["split"]),
+    }
     run_id = tracking.resumable_run(layout, "student", folder, f"student-{variant}", tags, {**dump, "variant": variant})
     tasks = dataset["tasks"]
     table = pa.concat_tables([pq.read_table(dataset["paths"][t]) for t in tasks])
@@ -122,15 +175,31 @@ def train_student(variant: str, config: StudentConfig, teacher: TeacherConfig, d
     tracking.experiment(layout, "student")
     with mlflow.start_run(run_id=run_id):
         with checkpoint_on_stop() as stop_requested:
-            result = train(split("train"), split("val"), clouds, cfg, folder, on_log=tracking.step_logger(run_id), should_stop=stop_requested)
+            result = train(
+                split("train"),
+                split("val"),
+                clouds,
+                cfg,
+                folder,
+                on_log=tracking.step_logger(run_id),
+                should_stop=stop_requested,
+            )
         mlflow.log_artifact(str(folder / CHECKPOINT), "checkpoints")
         serving = ServingStudent(result.net, clouds.shape[1]).eval()
         window = split("val") if len(split("val")) else split("train")
-        example = torch.cat([window.batch(torch.arange(1))["inputs"].reshape(1, -1), clouds[window.cloud[window.starts[:1] + cfg.history - 1]].reshape(1, -1)], dim=1)
+        example = torch.cat(
+            [
+                window.batch(torch.arange(1))["inputs"].reshape(1, -1),
+                clouds[window.cloud[window.starts[:1] + cfg.history - 1]].reshape(1, -1),
+            ],
+            dim=1,
+        )
         with torch.inference_mode():
             signature = infer_signature(example.numpy(), serving(example).numpy())
         # pickled module: torch.export (MLflow's default) is not thread-safe and variants train side by side
-        mlflow.pytorch.log_model(serving, name="model", signature=signature, input_example=example.numpy(), serialization_format="pickle")
+        mlflow.pytorch.log_model(
+            serving, name="model", signature=signature, input_example=example.numpy(), serialization_format="pickle"
+        )
         mlflow.log_metrics({"val/initial_loss": result.initial_val["loss"], "val/final_loss": result.final_val["loss"]})
     if result.resumed_from:
         get_run_logger().info("student %s resumed at update %d of %d", variant, result.resumed_from, result.steps)
@@ -138,8 +207,20 @@ def train_student(variant: str, config: StudentConfig, teacher: TeacherConfig, d
             "initial_val_loss": result.initial_val["loss"], "final_val_loss": result.final_val["loss"]}  # fmt: skip
 
 
-@task(cache_policy=cache_policy(*STUDENT_MODULES), persist_result=True, task_run_name="student-reconstruct-{trained[variant]}")
-def reconstruct(trained: dict, config: StudentConfig, teacher: TeacherConfig, split: dict, recordings: list[dict], digest: str, data: str) -> list[dict]:
+@task(
+    cache_policy=cache_policy(*STUDENT_MODULES),
+    persist_result=True,
+    task_run_name="student-reconstruct-{trained[variant]}",
+)
+def reconstruct(
+    trained: dict,
+    config: StudentConfig,
+    teacher: TeacherConfig,
+    split: dict,
+    recordings: list[dict],
+    digest: str,
+    data: str,
+) -> list[dict]:
     """Reconstruct every held-out demonstration with one trained variant: executed in MuJoCo,
     figures per task to the variant's MLflow run. The full model's reconstructions are the
     lake's: ``contacts`` (source reconstructed) and ``student_predictions`` of the held-out
@@ -167,10 +248,25 @@ def reconstruct(trained: dict, config: StudentConfig, teacher: TeacherConfig, sp
         reconstructed = ids + trained_on if variant == "full" else ids
         refs = list(_references(layout, [by_id[i] for i in reconstructed], teacher).values())
         source = teacher_rollouts_path(layout.lake, method, task_name)
-        result = reconstruct_task(net, task_name, refs, teacher, method, variant, pq.read_table(source) if source.is_file() else None, evaluated=ids)
+        result = reconstruct_task(
+            net,
+            task_name,
+            refs,
+            teacher,
+            method,
+            variant,
+            pq.read_table(source) if source.is_file() else None,
+            evaluated=ids,
+        )
         if variant == "full":
             lake_io.write_rows(layout.lake, "rollouts", f"student-{task_name}", result.rollouts, {"method": method})
-            lake_io.write_rows(layout.lake, "contacts", f"student-{method}", result.contacts, {"source": "reconstructed", "task": task_name})
+            lake_io.write_rows(
+                layout.lake,
+                "contacts",
+                f"student-{method}",
+                result.contacts,
+                {"source": "reconstructed", "task": task_name},
+            )
             lake_io.write_rows(layout.lake, "student_predictions", f"{method}-{task_name}", result.predictions)
         with mlflow.start_run(run_id=trained["mlflow_run"]):
             mlflow.log_metrics({f"heldout/{task_name}/{k}": v for k, v in result.figures.items() if v == v})
@@ -181,12 +277,29 @@ def reconstruct(trained: dict, config: StudentConfig, teacher: TeacherConfig, sp
 @task(**ALWAYS_RUN)
 def report_student(profile: str, trained: list[dict], rows: list[dict]) -> list[dict]:
     """A Prefect table of the held-out figures per variant x task and a summary of the losses."""
-    keys = ("variant", "task", "demos", "joint_error_student", "joint_error_kinematic", "contact_f1", "predicted_contact_f1", "success_rate")
+    keys = (
+        "variant",
+        "task",
+        "demos",
+        "joint_error_student",
+        "joint_error_kinematic",
+        "contact_f1",
+        "predicted_contact_f1",
+        "success_rate",
+    )
     table = [{k: (round(r[k], 4) if isinstance(r[k], float) else r[k]) for k in keys} for r in rows]
-    create_table_artifact(key="student-heldout", table=table, description=f"Student reconstructions of held-out demonstrations ({profile})")
-    lines = [f"| {t['variant']} | {t['steps']} | {t['initial_val_loss']:.4f} | {t['final_val_loss']:.4f} |" for t in trained]
+    create_table_artifact(
+        key="student-heldout",
+        table=table,
+        description=f"Student reconstructions of held-out demonstrations ({profile})",
+    )
+    lines = [
+        f"| {t['variant']} | {t['steps']} | {t['initial_val_loss']:.4f} | {t['final_val_loss']:.4f} |" for t in trained
+    ]
     create_markdown_artifact(
         key="student-summary",
-        markdown=f"# Student ({profile})\n\n| variant | updates | val loss at init | val loss final |\n|---|---|---|---|\n" + "\n".join(lines) + "\n",
+        markdown=f"# Student ({profile})\n\n| variant | updates | val loss at init | val loss final |\n|---|---|---|---|\n"
+        + "\n".join(lines)
+        + "\n",
     )
     return table

@@ -16,7 +16,14 @@ from touch2robot import tracking
 from touch2robot.settings import DataLayout
 from touch2robot.teachers.config import TeacherConfig
 
-TEACHER_MODULES = ("touch2robot.teachers", "touch2robot.sim", "touch2robot.leap", "touch2robot.scenes", "touch2robot.contacts", "touch2robot.lake")
+TEACHER_MODULES = (
+    "touch2robot.teachers",
+    "touch2robot.sim",
+    "touch2robot.leap",
+    "touch2robot.scenes",
+    "touch2robot.contacts",
+    "touch2robot.lake",
+)
 # the lake files a demonstration reference is built from (see touch2robot.teachers.reference)
 REFERENCE_TABLES = ("retargeted", "object_pose", "hand_keypoints")
 
@@ -62,12 +69,29 @@ def _params(config: TeacherConfig, method: str) -> dict[str, object]:
 def _run_folder(layout: DataLayout, task_name: str, method: str, config: TeacherConfig, digest: str) -> Path:
     """One folder per distinct training: checkpoints of another config or other demonstrations
     are never resumed into this one."""
-    key = hashlib.sha256(json.dumps([config.model_dump(mode="json", exclude={"tasks", "methods", "rollouts_per_task"}), method, task_name, digest], sort_keys=True).encode())
+    key = hashlib.sha256(
+        json.dumps(
+            [
+                config.model_dump(mode="json", exclude={"tasks", "methods", "rollouts_per_task"}),
+                method,
+                task_name,
+                digest,
+            ],
+            sort_keys=True,
+        ).encode()
+    )
     return layout.checkpoints / "teachers" / f"{task_name}-{method}-{key.hexdigest()[:12]}"
 
 
-@task(cache_policy=cache_policy(*TEACHER_MODULES), persist_result=True, retries=1, task_run_name="teacher-{task_name}-{method}")
-def train_teacher(task_name: str, method: str, config: TeacherConfig, recordings: list[dict], digest: str, data: str, profile: str) -> dict:
+@task(
+    cache_policy=cache_policy(*TEACHER_MODULES),
+    persist_result=True,
+    retries=1,
+    task_run_name="teacher-{task_name}-{method}",
+)
+def train_teacher(
+    task_name: str, method: str, config: TeacherConfig, recordings: list[dict], digest: str, data: str, profile: str
+) -> dict:
     """Train (or finish training) the teacher of one task and method; metrics stream to one MLflow
     run (stage "teachers"), checkpoints are its artefacts. A killed run resumes from the newest
     checkpoint: the retry, or the next flow run, continues instead of starting over. A stopped run
@@ -78,8 +102,16 @@ def train_teacher(task_name: str, method: str, config: TeacherConfig, recordings
     layout = DataLayout.from_env(data)
     refs = _references(layout, recordings, config)
     folder = _run_folder(layout, task_name, method, config, digest)
-    tags = {"profile": profile, "task": task_name, "method": method, "demonstrations": str(len(recordings)), "checkpoints": str(folder)}
-    run_id = tracking.resumable_run(layout, "teachers", folder, f"teacher-{task_name}-{method}", tags, _params(config, method))
+    tags = {
+        "profile": profile,
+        "task": task_name,
+        "method": method,
+        "demonstrations": str(len(recordings)),
+        "checkpoints": str(folder),
+    }
+    run_id = tracking.resumable_run(
+        layout, "teachers", folder, f"teacher-{task_name}-{method}", tags, _params(config, method)
+    )
     vec_env = make_teacher_env(task_name, refs, config, method)
     try:
         with checkpoint_on_stop() as stop_requested:
@@ -87,7 +119,9 @@ def train_teacher(task_name: str, method: str, config: TeacherConfig, recordings
     finally:
         vec_env.env.close()
     if result.resumed_from:
-        get_run_logger().info("teacher %s/%s resumed at iteration %d of %d", task_name, method, result.resumed_from, result.iterations)
+        get_run_logger().info(
+            "teacher %s/%s resumed at iteration %d of %d", task_name, method, result.resumed_from, result.iterations
+        )
     return {"task": task_name, "method": method, "checkpoint": str(result.checkpoint), "iterations": result.iterations,
             "resumed_from": result.resumed_from, "mlflow_run": run_id}  # fmt: skip
 
@@ -97,7 +131,11 @@ def _store_rollouts(layout: DataLayout, task_name: str, method: str, origin: str
     lake_io.write_rows(layout.lake, "contacts", f"{origin}-{method}", contacts, {"source": "sim", "task": task_name})
 
 
-@task(cache_policy=cache_policy(*TEACHER_MODULES, "touch2robot.metrics"), persist_result=True, task_run_name="rollouts-{trained[task]}-{trained[method]}")
+@task(
+    cache_policy=cache_policy(*TEACHER_MODULES, "touch2robot.metrics"),
+    persist_result=True,
+    task_run_name="rollouts-{trained[task]}-{trained[method]}",
+)
 def teacher_rollouts(trained: dict, config: TeacherConfig, recordings: list[dict], digest: str, data: str) -> dict:
     """``config.rollouts_per_task`` deterministic rollouts of a trained teacher -> ``rollouts`` and
     sim ``contacts``; success rate and contact F1 vs the human preference go to its MLflow run."""
@@ -115,7 +153,9 @@ def teacher_rollouts(trained: dict, config: TeacherConfig, recordings: list[dict
     policy = load_policy(vec_env, config, Path(trained["checkpoint"]))
 
     def act(obs: dict) -> object:
-        groups = TensorDict({k: torch.as_tensor(v, dtype=torch.float32) for k, v in obs.items()}, batch_size=[vec_env.num_envs])
+        groups = TensorDict(
+            {k: torch.as_tensor(v, dtype=torch.float32) for k, v in obs.items()}, batch_size=[vec_env.num_envs]
+        )
         with torch.inference_mode():
             return policy(groups).numpy()
 
@@ -129,11 +169,24 @@ def teacher_rollouts(trained: dict, config: TeacherConfig, recordings: list[dict
         import mlflow
 
         mlflow.log_metrics({f"rollouts/{k}": v for k, v in figures.items() if v == v})
-    return {"task": task_name, "method": method, "origin": "teacher", **figures, "iterations": trained["iterations"], "mlflow_run": trained["mlflow_run"]}
+    return {
+        "task": task_name,
+        "method": method,
+        "origin": "teacher",
+        **figures,
+        "iterations": trained["iterations"],
+        "mlflow_run": trained["mlflow_run"],
+    }
 
 
-@task(cache_policy=cache_policy(*TEACHER_MODULES, "touch2robot.metrics"), persist_result=True, task_run_name="kinematic-{task_name}")
-def kinematic_rollouts(task_name: str, config: TeacherConfig, recordings: list[dict], digest: str, data: str, profile: str) -> dict:
+@task(
+    cache_policy=cache_policy(*TEACHER_MODULES, "touch2robot.metrics"),
+    persist_result=True,
+    task_run_name="kinematic-{task_name}",
+)
+def kinematic_rollouts(
+    task_name: str, config: TeacherConfig, recordings: list[dict], digest: str, data: str, profile: str
+) -> dict:
     """Dex Retargeting's robot trajectories: the kinematic references replayed in MuJoCo with no
     residual (no teacher), one per demonstration, recorded like teacher rollouts."""
     from touch2robot.sim.env import BatchEnv
@@ -145,7 +198,9 @@ def kinematic_rollouts(task_name: str, config: TeacherConfig, recordings: list[d
     refs = _references(layout, recordings, config)
     env = BatchEnv(build_scene(task_name, config.sim), config.sim, len(refs.ids))
     try:
-        rows, contacts = ro.record(env, DemoTracking(refs, config, "touch2robot"), ro.zero_residual, "dex-retargeting", "kinematic")
+        rows, contacts = ro.record(
+            env, DemoTracking(refs, config, "touch2robot"), ro.zero_residual, "dex-retargeting", "kinematic"
+        )
     finally:
         env.close()
     _store_rollouts(layout, task_name, "dex-retargeting", "kinematic", rows, contacts)
@@ -155,18 +210,39 @@ def kinematic_rollouts(task_name: str, config: TeacherConfig, recordings: list[d
         import mlflow
 
         mlflow.log_metrics({f"rollouts/{k}": v for k, v in figures.items() if v == v})
-    return {"task": task_name, "method": "dex-retargeting", "origin": "kinematic", **figures, "iterations": 0, "mlflow_run": run.info.run_id}
+    return {
+        "task": task_name,
+        "method": "dex-retargeting",
+        "origin": "kinematic",
+        **figures,
+        "iterations": 0,
+        "mlflow_run": run.info.run_id,
+    }
 
 
 @task(**ALWAYS_RUN)
 def report_teachers(profile: str, results: list[dict]) -> list[dict]:
     """A Prefect table of success rate and contact F1 per task x method, and a summary."""
-    keys = ("task", "method", "origin", "iterations", "rollouts", "success_rate", "final_progress", "contact_precision", "contact_recall", "contact_f1", "mlflow_run")
+    keys = (
+        "task",
+        "method",
+        "origin",
+        "iterations",
+        "rollouts",
+        "success_rate",
+        "final_progress",
+        "contact_precision",
+        "contact_recall",
+        "contact_f1",
+        "mlflow_run",
+    )
     table = [{k: (round(r[k], 3) if isinstance(r[k], float) else r[k]) for k in keys} for r in results]
     create_table_artifact(key="teacher-rollouts", table=table, description=f"Teacher rollouts ({profile})")
     lines = [f"| {r['task']} | {r['method']} | {r['success_rate']:.2f} | {r['contact_f1']:.3f} |" for r in table]
     create_markdown_artifact(
         key="teachers-summary",
-        markdown=f"# Teachers ({profile})\n\n| task | method | success | contact F1 vs human |\n|---|---|---|---|\n" + "\n".join(lines) + "\n",
+        markdown=f"# Teachers ({profile})\n\n| task | method | success | contact F1 vs human |\n|---|---|---|---|\n"
+        + "\n".join(lines)
+        + "\n",
     )
     return table

@@ -38,8 +38,13 @@ def live_processes_with_env(name: str, value: str) -> list[str]:
         if not entry.name.isdigit() or int(entry.name) == os.getpid():
             continue
         try:
-            if marker in (entry / "environ").read_bytes().split(b"\0") and (entry / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z":
-                found.append(f"{entry.name}: {(entry / 'cmdline').read_bytes().replace(b'\0', b' ')[:160].decode(errors='replace')}")
+            if (
+                marker in (entry / "environ").read_bytes().split(b"\0")
+                and (entry / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+            ):
+                found.append(
+                    f"{entry.name}: {(entry / 'cmdline').read_bytes().replace(b'\0', b' ')[:160].decode(errors='replace')}"
+                )
         except OSError:
             continue
     return found
@@ -93,7 +98,10 @@ def demo_lake(tmp_path_factory: pytest.TempPathFactory) -> Path:
     config = SynthConfig(subjects=1, demos_per_subject=1, replays_per_task=0)
     retargeter = Retargeter(LEAP_DEFAULT)
     for task in config.tasks:
-        ingest_file(write_recording(config, RecordingJob("glove_session", task, 1, 1), layout.recordings, layout.groundtruth), layout.lake)
+        ingest_file(
+            write_recording(config, RecordingJob("glove_session", task, 1, 1), layout.recordings, layout.groundtruth),
+            layout.lake,
+        )
     for recording in recording_rows(layout.lake).to_pylist():
         rid = recording["recording_id"]
         rows, _ = human_contacts(layout.lake, recording, ContactsConfig())
@@ -122,7 +130,24 @@ def scripted_rollout_rows(task: str, method: str, n: int, steps: int, origin: st
     home = env.home_state[env.layout.qpos][env.scene.hand_qpos]
     onset = rng.uniform(3, 8, n)
     depth = rng.uniform(0.035, 0.05, n)
-    rows: dict[str, list] = {k: [] for k in ("rollout_id", "reference_id", "step", "joint_position", "joint_velocity", "joint_target", "wrist_state", "wrist_pose", "object_pose", "drawer_opening", "region_force", "progress", "success")}
+    rows: dict[str, list] = {
+        k: []
+        for k in (
+            "rollout_id",
+            "reference_id",
+            "step",
+            "joint_position",
+            "joint_velocity",
+            "joint_target",
+            "wrist_state",
+            "wrist_pose",
+            "object_pose",
+            "drawer_opening",
+            "region_force",
+            "progress",
+            "success",
+        )
+    }
     for k in range(steps):
         grip = np.clip((k - onset) / 10, 0, 1)[:, None]
         targets = home + grip * close

@@ -7,9 +7,9 @@ from pathlib import Path
 import pytest
 
 from touch2robot import catalog
+from touch2robot import lake as lake_io
 from touch2robot.config import load_profile
 from touch2robot.contacts.extract import human_contacts
-from touch2robot import lake as lake_io
 from touch2robot.ingest import ingest_file, recording_rows
 from touch2robot.settings import DataLayout
 
@@ -28,11 +28,15 @@ def layout(smoke_data: Path, tmp_path_factory: pytest.TempPathFactory) -> DataLa
 
 
 def test_views_and_the_readme_query(layout: DataLayout) -> None:
-    result = catalog.query(layout, "SELECT region, avg(contact::INT) AS share FROM contacts GROUP BY ALL ORDER BY region").to_pylist()
+    result = catalog.query(
+        layout, "SELECT region, avg(contact::INT) AS share FROM contacts GROUP BY ALL ORDER BY region"
+    ).to_pylist()
     assert [r["region"] for r in result] == ["P1", "P2", "P3", "P4", "T1", "T2", "T3", "T4"]
     assert all(0 <= r["share"] <= 1 for r in result)
     tasks = catalog.query(layout, "SELECT DISTINCT task, source FROM contacts ORDER BY task").to_pylist()
-    assert {r["task"] for r in tasks} == {"pick", "rotate", "wipe", "drawer"} and {r["source"] for r in tasks} == {"human"}
+    assert {r["task"] for r in tasks} == {"pick", "rotate", "wipe", "drawer"} and {r["source"] for r in tasks} == {
+        "human"
+    }
     # tables with no rows yet are typed empty views, so queries on them work
     assert catalog.query(layout, "SELECT count(*) AS n FROM twintac").to_pylist() == [{"n": 0}]
 
@@ -66,7 +70,9 @@ def test_readers_coexist_with_each_other(layout: DataLayout) -> None:
     a = catalog.connect_read_only(layout)
     b = catalog.connect_read_only(layout)
     try:
-        assert a.sql("SELECT count(*) FROM recordings").fetchall() == b.sql("SELECT count(*) FROM recordings").fetchall()
+        assert (
+            a.sql("SELECT count(*) FROM recordings").fetchall() == b.sql("SELECT count(*) FROM recordings").fetchall()
+        )
     finally:
         a.close()
         b.close()

@@ -68,7 +68,9 @@ def test_thresholds_must_be_recording_specific(smoke_data: Path, ingested) -> No
     levels = [float(np.median(s)) for s in raw_sums]
     assert max(levels) / min(levels) > 1.5  # per-recording offsets differ a lot
     truth_all, raw_all = np.concatenate(truths), np.concatenate(raw_sums)
-    best_global = max(contact_scores(truth_all, raw_all > thr).f1 for thr in np.quantile(raw_all, np.linspace(0.01, 0.99, 99)))
+    best_global = max(
+        contact_scores(truth_all, raw_all > thr).f1 for thr in np.quantile(raw_all, np.linspace(0.01, 0.99, 99))
+    )
     per_recording = contact_scores(truth_all, np.concatenate(own)).f1
     assert per_recording > 0.95 and best_global < per_recording - 0.1, (best_global, per_recording)
 
@@ -88,8 +90,12 @@ def test_real_contacts_from_twintac_and_fsr(smoke_data: Path, ingested) -> None:
         assert (df.reference_id == link.reference["recording_id"]).all()
         assert df.t_ref.min() >= 0 and (df.t_ref <= df.t + 1e-9).all()  # replays run slower than the reference
         gt = pq.read_table(smoke_data / "groundtruth" / f"{Path(link.replay['path']).stem}.parquet").to_pandas()
-        tips = df[df.region.isin(ROBOT_REGIONS[:4])].pivot(index="t", columns="region", values="contact")[list(ROBOT_REGIONS[:4])]
-        truth = gt[gt.region.isin(ROBOT_REGIONS[:4])].pivot(index="t", columns="region", values="contact")[list(ROBOT_REGIONS[:4])]
+        tips = df[df.region.isin(ROBOT_REGIONS[:4])].pivot(index="t", columns="region", values="contact")[
+            list(ROBOT_REGIONS[:4])
+        ]
+        truth = gt[gt.region.isin(ROBOT_REGIONS[:4])].pivot(index="t", columns="region", values="contact")[
+            list(ROBOT_REGIONS[:4])
+        ]
         assert len(tips) == len(truth)
         refs.append(truth.to_numpy())
         evals.append(tips.to_numpy())

@@ -1,5 +1,5 @@
 """prefect.yaml end to end: a real Prefect server and a real MLflow server on 127.0.0.1,
-the deployments registered (flows/deploy.py), a process
+the deployments registered (app/deploy.py), a process
 worker that runs the ingest deployment once on demonstrator data, and the ingest run's
 record arriving in the MLflow server.
 
@@ -24,7 +24,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from touch2robot.local_server import stop_group
+from app.local_server import stop_group
 from touch2robot.synth.config import SynthConfig
 from touch2robot.synth.generate import plan, write_recording
 
@@ -68,7 +68,9 @@ def api(base: str, method: str, path: str, body: dict | None = None) -> dict | l
     """A Prefect REST call (the test process itself never imports Prefect: its settings
     would be fixed for the rest of the session)."""
     data = json.dumps(body).encode() if body is not None else None
-    req = urllib.request.Request(f"{base}{path}", data=data, method=method, headers={"Content-Type": "application/json"})
+    req = urllib.request.Request(
+        f"{base}{path}", data=data, method=method, headers={"Content-Type": "application/json"}
+    )
     with urllib.request.urlopen(req, timeout=30) as r:
         return json.loads(r.read() or b"null")
 
@@ -91,23 +93,43 @@ def servers(tmp_path: Path) -> Iterator[dict]:
         "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
         "PREFECT_UI_ENABLED": "false",
     }
-    prefect_cmd = [sys.executable, "-m", "prefect", "server", "start", "--host", "127.0.0.1", "--port", str(prefect_port)]
+    prefect_cmd = [
+        sys.executable,
+        "-m",
+        "prefect",
+        "server",
+        "start",
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(prefect_port),
+    ]
     mlflow_cmd = [
         sys.executable, "-m", "mlflow", "server", "--host", "127.0.0.1", "--port", str(mlflow_port), "--workers", "1",
         "--backend-store-uri", f"sqlite:///{tmp_path / 'mlflow.db'}", "--artifacts-destination", str(tmp_path / "mlartifacts"),
     ]  # fmt: skip
     prefect_log, mlflow_log = tmp_path / "prefect-server.log", tmp_path / "mlflow-server.log"
-    with spawned(prefect_cmd, prefect_env, prefect_log) as prefect_proc, spawned(mlflow_cmd, base_env, mlflow_log, cwd=tmp_path) as mlflow_proc:
+    with (
+        spawned(prefect_cmd, prefect_env, prefect_log) as prefect_proc,
+        spawned(mlflow_cmd, base_env, mlflow_log, cwd=tmp_path) as mlflow_proc,
+    ):
         prefect_api = f"http://127.0.0.1:{prefect_port}/api"
         mlflow_uri = f"http://127.0.0.1:{mlflow_port}"
         wait_http(f"{prefect_api}/health", prefect_proc, prefect_log)
         wait_http(f"{mlflow_uri}/health", mlflow_proc, mlflow_log)
-        yield {"prefect_api": prefect_api, "mlflow_uri": mlflow_uri, "env": base_env, "pids": [prefect_proc.pid, mlflow_proc.pid]}
+        yield {
+            "prefect_api": prefect_api,
+            "mlflow_uri": mlflow_uri,
+            "env": base_env,
+            "pids": [prefect_proc.pid, mlflow_proc.pid],
+        }
 
 
 def tiny_recordings(data: Path) -> list[Path]:
     """One pick demonstration, its robot replay and the replay's calibration."""
-    config = SynthConfig(tasks=("pick",), subjects=1, demos_per_subject=1, replay_methods=("touch2robot",), replays_per_task=1)
+    config = SynthConfig(
+        tasks=("pick",), subjects=1, demos_per_subject=1, replay_methods=("touch2robot",), replays_per_task=1
+    )
     return [write_recording(config, job, data / "recordings", data / "groundtruth") for job in plan(config)]
 
 
@@ -146,9 +168,11 @@ def test_ingest_deployment_runs_on_a_worker_and_tracks_to_mlflow(servers: dict, 
 
     # register (creates the pool too); a second time only updates them
     for _ in range(2):
-        deployed = run_checked([sys.executable, "-m", "flows.deploy", "--pool", POOL], client_env)
+        deployed = run_checked([sys.executable, "-m", "app.deploy", "--pool", POOL], client_env)
     names = {line.split("\t")[0] for line in deployed.splitlines() if "\t" in line}
-    flows = {d["entrypoint"].rsplit(":", 1)[1] for d in yaml.safe_load((ROOT / "prefect.yaml").read_text())["deployments"]}
+    flows = {
+        d["entrypoint"].rsplit(":", 1)[1] for d in yaml.safe_load((ROOT / "prefect.yaml").read_text())["deployments"]
+    }
     assert names == {f"{flow}/local" for flow in flows}
     listed = api(servers["prefect_api"], "POST", "/deployments/filter", {})
     assert sorted(d["name"] for d in listed) == ["local"] * len(names)
@@ -158,9 +182,16 @@ def test_ingest_deployment_runs_on_a_worker_and_tracks_to_mlflow(servers: dict, 
     assert ingest["parameters"] == {"profile": "local", "data": None}
     assert ingest["pull_steps"] == [{"prefect.deployments.steps.set_working_directory": {"directory": str(ROOT)}}]
 
-    run = api(servers["prefect_api"], "POST", f"/deployments/{ingest['id']}/create_flow_run", {"parameters": {"profile": "smoke", "data": str(data)}})
+    run = api(
+        servers["prefect_api"],
+        "POST",
+        f"/deployments/{ingest['id']}/create_flow_run",
+        {"parameters": {"profile": "smoke", "data": str(data)}},
+    )
     worker_log = tmp_path / "worker.log"
-    with spawned([sys.executable, "-m", "prefect", "worker", "start", "--pool", POOL, "--run-once"], client_env, worker_log) as worker:
+    with spawned(
+        [sys.executable, "-m", "prefect", "worker", "start", "--pool", POOL, "--run-once"], client_env, worker_log
+    ) as worker:
         deadline = time.monotonic() + 400
         state = None
         while time.monotonic() < deadline:

@@ -15,8 +15,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from schemas.tables import SCHEMAS
-from touch2robot import lake as lake_io
 from touch2robot import evaluate as ev
+from touch2robot import lake as lake_io
 from touch2robot.metrics import ALL
 from touch2robot.stats import user_study
 from touch2robot.synth.ratings import synthetic_ratings
@@ -32,7 +32,13 @@ def _seq(source: str, method: str, task: str, seq: str, ref: str, t: list[float]
         for region, c in contact.items()
     ]
     return pd.concat(frames, ignore_index=True).assign(
-        source=source, method=method, task=task, subject="s01", sequence_id=seq, reference_id=ref, value=np.float32(np.nan)
+        source=source,
+        method=method,
+        task=task,
+        subject="s01",
+        sequence_id=seq,
+        reference_id=ref,
+        value=np.float32(np.nan),
     )
 
 
@@ -90,7 +96,16 @@ def test_onset_errors_pairs_and_summaries() -> None:
     human = _seq("human", "human", "pick", "h1", "h1", T4, T4, {"T1": [0, 1, 1, 0], "P1": [0, 0, 0, 0]})
     # replay clock runs twice as slow as the reference; the stored t_ref is deliberately off by
     # 0.25 s so the assertions show that the recorded time map, not t_ref, places the onset
-    real = _seq("real", "m", "pick", "r1", "h1", [0, 2, 4, 6], [0.25, 1.25, 2.25, 3.25], {"T1": [0, 0, 1, 1], "P1": [0, 1, 0, 0]})
+    real = _seq(
+        "real",
+        "m",
+        "pick",
+        "r1",
+        "h1",
+        [0, 2, 4, 6],
+        [0.25, 1.25, 2.25, 3.25],
+        {"T1": [0, 0, 1, 1], "P1": [0, 1, 0, 0]},
+    )
     time_map = pd.DataFrame({"recording_id": "r1", "t": [0.0, 6.0], "t_ref": [0.0, 3.0]})
     sim = pd.concat([
         _seq("sim", "m", "pick", "s1", "h1", T4, T4, {"T1": [1, 1, 1, 1], "P1": [0, 0, 0, 0]}),
@@ -148,7 +163,9 @@ def test_file_id_is_safe_and_unique() -> None:
 def test_lake_reading_sources_and_digest(scored: pd.DataFrame, tmp_path: Path) -> None:
     lake = tmp_path / "lake"
     for (source, task, seq), rows in scored.groupby(["source", "task", "sequence_id"]):
-        lake_io.write_rows(lake, "contacts", seq, pa.Table.from_pandas(rows, preserve_index=False), {"source": source, "task": task})
+        lake_io.write_rows(
+            lake, "contacts", seq, pa.Table.from_pandas(rows, preserve_index=False), {"source": source, "task": task}
+        )
     assert ev.evaluated_sources(lake) == ["real"]
     back = ev.read_contacts(lake, ["human", "real"])
     assert len(back) == len(scored) and list(back.columns) == list(ev.CONTACT_COLUMNS)
@@ -157,20 +174,28 @@ def test_lake_reading_sources_and_digest(scored: pd.DataFrame, tmp_path: Path) -
     before = ev.folder_digest(folders)
     assert ev.folder_digest(folders) == before
     extra = scored[scored["sequence_id"] == "r3"].assign(sequence_id="r4")
-    lake_io.write_rows(lake, "contacts", "r4", pa.Table.from_pandas(extra, preserve_index=False), {"source": "real", "task": "pick"})
+    lake_io.write_rows(
+        lake, "contacts", "r4", pa.Table.from_pandas(extra, preserve_index=False), {"source": "real", "task": "pick"}
+    )
     assert ev.folder_digest(folders) != before
     assert ev.folder_digest(ev.source_folders(lake, "sim")) != ev.folder_digest(folders)
 
 
 def test_user_study_table_and_synthetic_flag() -> None:
     ratings = synthetic_ratings(10, seed=3)
-    table = ev.user_study_table(ratings, "ratings_SYNTHETIC.csv", "abc", ev.is_synthetic(ratings, "ratings_SYNTHETIC.csv"))
+    table = ev.user_study_table(
+        ratings, "ratings_SYNTHETIC.csv", "abc", ev.is_synthetic(ratings, "ratings_SYNTHETIC.csv")
+    )
     assert list(table.columns) == SCHEMAS["user_study"].names
     expected = user_study(ratings).to_frame()
     assert list(table["question"]) == ["Q1", "Q2", "Q3", "Q4"]
     np.testing.assert_allclose(table["p_holm"], expected["p_holm"])
     np.testing.assert_allclose(table["statistic"], expected["statistic"])
-    assert table["synthetic"].all() and (table["zero_method"] == "wilcox").all() and (table["method"] == "asymptotic").all()
+    assert (
+        table["synthetic"].all()
+        and (table["zero_method"] == "wilcox").all()
+        and (table["method"] == "asymptotic").all()
+    )
     real = ratings.drop(columns="synthetic")
     assert not ev.is_synthetic(real, "ratings.csv")
     assert ev.is_synthetic(real, "study_synthetic.csv")
@@ -184,7 +209,9 @@ def test_figures_render(scored: pd.DataFrame, tmp_path: Path) -> None:
     onsets = ev.onset_errors_table(scored, pd.DataFrame(columns=["recording_id", "t", "t_ref"]), "real")
     paths = [
         ev.plot_metrics_by_method(metrics, onsets, tmp_path / "bars.png"),
-        ev.plot_timeline(scored[scored["sequence_id"] == "h1"], scored[scored["sequence_id"] == "r1"], "r1", tmp_path / "t.png"),
+        ev.plot_timeline(
+            scored[scored["sequence_id"] == "h1"], scored[scored["sequence_id"] == "r1"], "r1", tmp_path / "t.png"
+        ),
         ev.plot_ratings(synthetic_ratings(), "SYNTHETIC", tmp_path / "r.png"),
     ]
     for p in paths:
@@ -212,7 +239,10 @@ def _evaluate_runs(data: Path) -> pd.DataFrame:
 
 
 def _counts(data: Path) -> dict[str, int]:
-    return {t: int(_table(data, f"SELECT count(*) AS n FROM {t}")["n"].iloc[0]) for t in ("contact_metrics", "onset_errors", "user_study")}
+    return {
+        t: int(_table(data, f"SELECT count(*) AS n FROM {t}")["n"].iloc[0])
+        for t in ("contact_metrics", "onset_errors", "user_study")
+    }
 
 
 @pytest.fixture(scope="module")
@@ -252,9 +282,13 @@ def test_flow_tables_equal_the_sql_macros(evaluated: tuple[Path, dict]) -> None:
     data, _ = evaluated
     keys = ["method", "task", "region"]
     python = _table(data, "SELECT * FROM contact_metrics WHERE source = 'real'").sort_values(keys, ignore_index=True)
-    sql = _table(data, "SELECT * FROM contact_score_slices('human', 'real') WHERE subject = '*'").sort_values(keys, ignore_index=True)
+    sql = _table(data, "SELECT * FROM contact_score_slices('human', 'real') WHERE subject = '*'").sort_values(
+        keys, ignore_index=True
+    )
     assert len(python) == len(sql) == 4 * 8 + 4 + 8 + 1
-    pd.testing.assert_frame_equal(python[[*keys, "tp", "fp", "fn", "tn"]], sql[[*keys, "tp", "fp", "fn", "tn"]], check_dtype=False)
+    pd.testing.assert_frame_equal(
+        python[[*keys, "tp", "fp", "fn", "tn"]], sql[[*keys, "tp", "fp", "fn", "tn"]], check_dtype=False
+    )
     np.testing.assert_allclose(python["f1"].astype(float), sql["f1"].astype(float), rtol=1e-12)
 
 
@@ -269,7 +303,11 @@ def test_flow_logs_mlflow_runs_and_figures(evaluated: tuple[Path, dict]) -> None
     for column in ("precision", "recall", "f1", "fpr", "onset_error_ms", "onset_pairs"):
         assert method_runs[f"metrics.{column}"].notna().all(), column
     study = runs[runs["tags.kind"] == "user_study"]
-    assert len(study) == 1 and study["tags.synthetic"].iloc[0] == "true" and "SYNTHETIC" in study["tags.mlflow.runName"].iloc[0]
+    assert (
+        len(study) == 1
+        and study["tags.synthetic"].iloc[0] == "true"
+        and "SYNTHETIC" in study["tags.mlflow.runName"].iloc[0]
+    )
     client = mlflow.MlflowClient()
     pick = method_runs[method_runs["params.task"] == "pick"]["run_id"].iloc[0]
     assert [a.path for a in client.list_artifacts(pick, "contact_timelines")][0].endswith(".png")
@@ -291,9 +329,21 @@ def test_flow_rerun_replaces_and_follows_the_sources(evaluated: tuple[Path, dict
     # the real contacts on t_ref, so its counts must equal the real ones
     lake = data / "lake"
     real = ev.read_contacts(lake, ["real"])
-    sim = real.assign(source="sim", method="contrack", sequence_id="sim-" + real["sequence_id"], t=real["t_ref"], value=np.float32(np.nan))
+    sim = real.assign(
+        source="sim",
+        method="contrack",
+        sequence_id="sim-" + real["sequence_id"],
+        t=real["t_ref"],
+        value=np.float32(np.nan),
+    )
     for task, rows in sim.groupby("task"):
-        lake_io.write_rows(lake, "contacts", f"sim-{task}", pa.Table.from_pandas(rows, preserve_index=False), {"source": "sim", "task": task})
+        lake_io.write_rows(
+            lake,
+            "contacts",
+            f"sim-{task}",
+            pa.Table.from_pandas(rows, preserve_index=False),
+            {"source": "sim", "task": task},
+        )
     evaluate(profile="smoke", data=str(data))
     m = _table(data, "SELECT * FROM contact_metrics")
     count_cols = ["task", "region", "tp", "fp", "fn", "tn"]
@@ -312,4 +362,7 @@ def test_flow_rerun_replaces_and_follows_the_sources(evaluated: tuple[Path, dict
     bad.to_csv(data / "recordings" / "user_study" / "ratings_bad.csv", index=False)
     result = evaluate(profile="smoke", data=str(data))
     assert _counts(data) == counts  # the removed source's rows are gone, not kept stale
-    assert list(result["ratings_skipped"]) == ["ratings_bad.csv"] and "lacks one condition" in result["ratings_skipped"]["ratings_bad.csv"]
+    assert (
+        list(result["ratings_skipped"]) == ["ratings_bad.csv"]
+        and "lacks one condition" in result["ratings_skipped"]["ratings_bad.csv"]
+    )

@@ -18,7 +18,9 @@ from touch2robot.settings import DataLayout
 
 pytestmark = pytest.mark.slow
 
-RUN_INGEST = "from flows.ingest import ingest; import json; print('RESULT', json.dumps(ingest(profile='smoke', data={data!r})))"
+RUN_INGEST = (
+    "from flows.ingest import ingest; import json; print('RESULT', json.dumps(ingest(profile='smoke', data={data!r})))"
+)
 
 
 def _start(data: Path) -> subprocess.Popen:
@@ -38,7 +40,6 @@ def _run(data: Path) -> str:
         kill_group(proc)
     assert proc.returncode == 0, out[-3000:]
     return out
-
 
 
 def _copy_recordings(smoke_data: Path, data: Path) -> None:

@@ -112,7 +112,12 @@ def test_env_example_holds_no_real_secret() -> None:
 
 def test_every_image_is_pinned() -> None:
     images = [s["image"] for s in services().values() if "image" in s]
-    images += [line.split()[1] for path, _ in dockerfiles() for line in path.read_text().splitlines() if line.startswith("FROM ")]
+    images += [
+        line.split()[1]
+        for path, _ in dockerfiles()
+        for line in path.read_text().splitlines()
+        if line.startswith("FROM ")
+    ]
     assert len(images) >= 9
     for image in images:
         name, _, tag = image.rpartition(":")
@@ -163,7 +168,7 @@ def test_worker_polls_the_docker_pool_of_prefect_yaml() -> None:
     pools = yaml.safe_load((ROOT / "prefect.yaml").read_text())["definitions"]["work_pools"]
     command = " ".join(services()["worker"]["command"])
     assert f"--pool {pools['docker']['name']}" in command
-    assert f"flows.deploy --pool {pools['docker']['name']}" in command
+    assert f"app.deploy --pool {pools['docker']['name']}" in command
     env = services()["worker"]["environment"]
     assert env["PREFECT_API_URL"] == "http://prefect-server:4200/api"
     assert env["MLFLOW_TRACKING_URI"] == "http://mlflow:5000"
@@ -177,15 +182,27 @@ def test_dockerfiles_copy_files_that_exist_and_are_not_ignored() -> None:
         ignore = dockerfile.with_name(dockerfile.name + ".dockerignore")
         if not ignore.exists():
             ignore = context / ".dockerignore"
-        patterns = [p.strip() for p in ignore.read_text().splitlines() if p.strip() and not p.startswith("#")] if ignore.exists() else []
-        copies = [line.split()[1:-1] for line in dockerfile.read_text().splitlines() if line.startswith("COPY ") and "--from" not in line]
+        patterns = (
+            [p.strip() for p in ignore.read_text().splitlines() if p.strip() and not p.startswith("#")]
+            if ignore.exists()
+            else []
+        )
+        copies = [
+            line.split()[1:-1]
+            for line in dockerfile.read_text().splitlines()
+            if line.startswith("COPY ") and "--from" not in line
+        ]
         assert copies
         for sources in copies:
             for source in sources:
                 assert (context / source).exists(), f"{dockerfile}: COPY {source} does not exist in {context}"
                 assert not ignored(source, patterns), f"{dockerfile}: COPY {source} is excluded by {ignore.name}"
     # the big image must not ship the virtual environment or a data folder
-    patterns = [p.strip() for p in (INFRA / "Dockerfile.dockerignore").read_text().splitlines() if p.strip() and not p.startswith("#")]
+    patterns = [
+        p.strip()
+        for p in (INFRA / "Dockerfile.dockerignore").read_text().splitlines()
+        if p.strip() and not p.startswith("#")
+    ]
     for path in (".venv", "data", "infra/.env", "tests"):
         assert ignored(path, patterns), path
 

@@ -69,7 +69,9 @@ def _flip_chunk_byte(data: bytes) -> bytes:
     raise AssertionError("no chunk")
 
 
-def _rewrite(src_smoke: Path, path: Path, *, drop: str = "", mutate=None, schema_name: str | None = None, metadata=None) -> None:
+def _rewrite(
+    src_smoke: Path, path: Path, *, drop: str = "", mutate=None, schema_name: str | None = None, metadata=None
+) -> None:
     """A small glove session written from scratch with one defect injected."""
     meta = {"task": "pick", "subject": "s09"} if metadata is None else metadata
     with RecordingWriter(path, "glove_session", meta) as w:
@@ -109,11 +111,26 @@ def _backwards(i, values, stamp):
 BAD_INPUTS = {
     "truncated": ("truncated", lambda good, p, s: p.write_bytes(good.read_bytes()[: good.stat().st_size * 2 // 3])),
     "corrupt_chunk": ("corrupt or truncated", lambda good, p, s: p.write_bytes(_flip_chunk_byte(good.read_bytes()))),
-    "missing_topic": ("missing topic(s) /glove/hand_joints", lambda good, p, s: _rewrite(s, p, drop="/glove/hand_joints")),
-    "wrong_schema": ("topic /glove/taxels has schema 'std_msgs/msg/Float32MultiArray'", lambda good, p, s: _rewrite(s, p, schema_name="std_msgs/msg/Float32MultiArray")),
-    "non_monotonic": ("timestamps not strictly increasing at message 5", lambda good, p, s: _rewrite(s, p, mutate=_backwards)),
-    "nan_taxels": ("non-finite value (nan) in field 'values' at message 7, index 3", lambda good, p, s: _rewrite(s, p, mutate=_nan)),
-    "wrong_length": ("topic /glove/taxels: field 'values' has length 255 in message 4", lambda good, p, s: _rewrite(s, p, mutate=_short)),
+    "missing_topic": (
+        "missing topic(s) /glove/hand_joints",
+        lambda good, p, s: _rewrite(s, p, drop="/glove/hand_joints"),
+    ),
+    "wrong_schema": (
+        "topic /glove/taxels has schema 'std_msgs/msg/Float32MultiArray'",
+        lambda good, p, s: _rewrite(s, p, schema_name="std_msgs/msg/Float32MultiArray"),
+    ),
+    "non_monotonic": (
+        "timestamps not strictly increasing at message 5",
+        lambda good, p, s: _rewrite(s, p, mutate=_backwards),
+    ),
+    "nan_taxels": (
+        "non-finite value (nan) in field 'values' at message 7, index 3",
+        lambda good, p, s: _rewrite(s, p, mutate=_nan),
+    ),
+    "wrong_length": (
+        "topic /glove/taxels: field 'values' has length 255 in message 4",
+        lambda good, p, s: _rewrite(s, p, mutate=_short),
+    ),
     "no_metadata": ("metadata lacks task, subject", lambda good, p, s: _rewrite(s, p, metadata={"task": ""})),
 }
 

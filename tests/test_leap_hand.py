@@ -15,11 +15,36 @@ from touch2robot.leap import hand_mjcf, hand_urdf
 from touch2robot.leap.mjcf import REGION_SENSOR_PREFIX, add_hand, mjcf_root, section, sub
 
 # Fingertip sites in the palm frame (m), reference table at q = 0 and at Playground's "home" pose.
-TIPS_AT_ZERO = {"if_tip": (0.1322, 0.0076, -0.0195), "mf_tip": (0.1321, -0.0378, -0.0195), "rf_tip": (0.1321, -0.0832, -0.0195), "th_tip": (-0.0823, 0.1367, -0.0219)}
-TIPS_AT_HOME = {"if_tip": (-0.0085, 0.0076, -0.1272), "mf_tip": (-0.0086, -0.0378, -0.1272), "rf_tip": (-0.0086, -0.0832, -0.1272), "th_tip": (-0.0292, 0.0328, -0.1357)}
-HOME = {**{f"{f}_{j}": v for f in hd.FINGERS for j, v in zip(("mcp", "rot", "pip", "dip"), (0.8, 0.0, 0.8, 0.8))}, "th_cmc": 0.8, "th_axl": 0.8, "th_mcp": 0.8, "th_ipl": 0.0}
+TIPS_AT_ZERO = {
+    "if_tip": (0.1322, 0.0076, -0.0195),
+    "mf_tip": (0.1321, -0.0378, -0.0195),
+    "rf_tip": (0.1321, -0.0832, -0.0195),
+    "th_tip": (-0.0823, 0.1367, -0.0219),
+}
+TIPS_AT_HOME = {
+    "if_tip": (-0.0085, 0.0076, -0.1272),
+    "mf_tip": (-0.0086, -0.0378, -0.1272),
+    "rf_tip": (-0.0086, -0.0832, -0.1272),
+    "th_tip": (-0.0292, 0.0328, -0.1357),
+}
+HOME = {
+    **{f"{f}_{j}": v for f in hd.FINGERS for j, v in zip(("mcp", "rot", "pip", "dip"), (0.8, 0.0, 0.8, 0.8))},
+    "th_cmc": 0.8,
+    "th_axl": 0.8,
+    "th_mcp": 0.8,
+    "th_ipl": 0.0,
+}
 # Reference joint ranges; thumb axl/mcp from the URDFs (see description.THUMB_JOINTS for why)
-RANGES = {"mcp": (-0.314, 2.23), "rot": (-1.047, 1.047), "pip": (-0.506, 1.885), "dip": (-0.366, 2.042), "th_cmc": (-0.349, 2.094), "th_axl": (-0.47, 2.443), "th_mcp": (-1.20, 1.90), "th_ipl": (-1.34, 1.88)}
+RANGES = {
+    "mcp": (-0.314, 2.23),
+    "rot": (-1.047, 1.047),
+    "pip": (-0.506, 1.885),
+    "dip": (-0.366, 2.042),
+    "th_cmc": (-0.349, 2.094),
+    "th_axl": (-0.47, 2.443),
+    "th_mcp": (-1.20, 1.90),
+    "th_ipl": (-1.34, 1.88),
+}
 
 
 def _range(joint: str) -> tuple[float, float]:

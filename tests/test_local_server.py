@@ -1,4 +1,4 @@
-"""touch2robot.local_server: the servers the command starts cannot outlive it (real
+"""app.local_server: the servers the command starts cannot outlive it (real
 processes: a parent that spawns a child, killed with SIGKILL) and a stop reaches the
 child's own children. The Prefect API server itself is exercised by
 tests/test_reliability.py (a killed `touch2robot ingest`)."""
@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from touch2robot.local_server import StopRequest, answers, free_port, spawn_owned, stop_group
+from app.local_server import StopRequest, answers, free_port, spawn_owned, stop_group
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux only")
 
@@ -24,7 +24,7 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR
 PARENT = textwrap.dedent(
     """
     import sys, time
-    from touch2robot.local_server import spawn_owned
+    from app.local_server import spawn_owned
     child = spawn_owned(["sleep", "600"])
     print(child.pid, flush=True)
     time.sleep(600)
@@ -96,7 +96,9 @@ def processes_in(data: Path) -> list[str]:
         if entry.name.isdigit() and int(entry.name) != os.getpid():
             try:
                 if marker in (entry / "environ").read_bytes().split(b"\0") and alive(int(entry.name)):
-                    found.append(f"{entry.name}: {(entry / 'cmdline').read_bytes().replace(b'\0', b' ')[:160].decode(errors='replace')}")
+                    found.append(
+                        f"{entry.name}: {(entry / 'cmdline').read_bytes().replace(b'\0', b' ')[:160].decode(errors='replace')}"
+                    )
             except OSError:
                 continue
     return found
@@ -109,7 +111,17 @@ def test_ui_start_serves_both_uis_and_a_stop_leaves_nothing_running(tmp_path: Pa
     mlflow_port, prefect_port = free_port(), free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith(("PREFECT_", "MLFLOW_"))}
     env.update(TOUCH2ROBOT_DATA=str(data), PREFECT_SERVER_ANALYTICS_ENABLED="false", PYTHONUNBUFFERED="1")
-    command = [sys.executable, "-m", "touch2robot.cli", "ui", "--start", "--port", str(mlflow_port), "--prefect-port", str(prefect_port)]
+    command = [
+        sys.executable,
+        "-m",
+        "app.cli",
+        "ui",
+        "--start",
+        "--port",
+        str(mlflow_port),
+        "--prefect-port",
+        str(prefect_port),
+    ]
     log = tmp_path / "ui.log"
     with open(log, "w") as out:
         proc = subprocess.Popen(command, env=env, stdout=out, stderr=subprocess.STDOUT)
@@ -118,7 +130,9 @@ def test_ui_start_serves_both_uis_and_a_stop_leaves_nothing_running(tmp_path: Pa
         while "Ctrl-C stops them" not in log.read_text() and proc.poll() is None and time.monotonic() < deadline:
             time.sleep(0.5)
         assert "Ctrl-C stops them" in log.read_text(), log.read_text()[-4000:]
-        assert answers(f"http://127.0.0.1:{mlflow_port}/health") and answers(f"http://127.0.0.1:{prefect_port}/api/health")
+        assert answers(f"http://127.0.0.1:{mlflow_port}/health") and answers(
+            f"http://127.0.0.1:{prefect_port}/api/health"
+        )
         assert len(processes_in(data)) >= 3  # the command and at least one process per server
         proc.send_signal(stop)  # a terminal's Ctrl-C reaches the command only: the servers have their own groups
         try:

@@ -119,8 +119,14 @@ def test_all_zero_and_all_one_cases() -> None:
 def test_as_dict_has_counts_and_scores() -> None:
     s = contact_scores(np.array([[1, 0], [1, 1]]), np.array([[1, 1], [0, 1]]))
     assert s.as_dict() == {
-        "tp": 2, "fp": 1, "fn": 1, "tn": 0,
-        "precision": 2 / 3, "recall": 2 / 3, "f1": 4 / 6, "fpr": 1.0,
+        "tp": 2,
+        "fp": 1,
+        "fn": 1,
+        "tn": 0,
+        "precision": 2 / 3,
+        "recall": 2 / 3,
+        "f1": 4 / 6,
+        "fpr": 1.0,
     }
 
 
@@ -143,9 +149,7 @@ def test_stacked_non_contiguous_and_chunked(monkeypatch: pytest.MonkeyPatch) -> 
     rt = np.swapaxes(ref, 0, 1)
     et = np.swapaxes(ev, 0, 1)
     assert contact_scores(rt, et) == s
-    assert contact_scores(ref[:, ::2], ev[:, ::2]) == ContactScores(
-        *_sklearn_counts(ref[:, ::2], ev[:, ::2])
-    )
+    assert contact_scores(ref[:, ::2], ev[:, ::2]) == ContactScores(*_sklearn_counts(ref[:, ::2], ev[:, ::2]))
 
 
 def test_numeric_binary_inputs_are_accepted() -> None:
@@ -214,21 +218,22 @@ def test_align_validation(ref_t, ref_c, eval_t, match) -> None:
 
 
 def _long(rows: list[tuple]) -> pd.DataFrame:
-    cols = ["source", "method", "task", "subject", "sequence_id", "reference_id",
-            "t", "t_ref", "region", "contact"]
+    cols = ["source", "method", "task", "subject", "sequence_id", "reference_id", "t", "t_ref", "region", "contact"]
     return pd.DataFrame(rows, columns=cols).assign(value=np.float32(np.nan))
 
 
 def test_contact_counts_long_hand_example() -> None:
-    h = [("human", "human", "pick", "s1", "h1", "h1", t, t, "T1", c)
-         for t, c in [(0.0, True), (1.0, False), (2.0, True)]]
-    e = [("sim", "m", "pick", "s1", "x1", "h1", t, tr, "T1", c)
-         for t, tr, c in [(0.0, -0.5, True), (0.1, 0.0, True), (0.2, 1.5, False), (0.3, 2.0, True)]]
+    h = [
+        ("human", "human", "pick", "s1", "h1", "h1", t, t, "T1", c) for t, c in [(0.0, True), (1.0, False), (2.0, True)]
+    ]
+    e = [
+        ("sim", "m", "pick", "s1", "x1", "h1", t, tr, "T1", c)
+        for t, tr, c in [(0.0, -0.5, True), (0.1, 0.0, True), (0.2, 1.5, False), (0.3, 2.0, True)]
+    ]
     orphan = [("sim", "m", "pick", "s1", "x2", "missing", 0.0, 1.0, "T1", True)]
     counts = contact_counts_long(_long(h + e + orphan), eval_source="sim")
     assert counts.to_dict("records") == [
-        {"method": "m", "task": "pick", "subject": "s1", "region": "T1",
-         "tp": 2, "fp": 0, "fn": 0, "tn": 1}
+        {"method": "m", "task": "pick", "subject": "s1", "region": "T1", "tp": 2, "fp": 0, "fn": 0, "tn": 1}
     ]
     scored = contact_scores_table(counts, by=["method"])
     assert scored.loc[0, ["precision", "recall", "f1", "fpr"]].tolist() == [1.0, 1.0, 1.0, 0.0]
@@ -281,9 +286,7 @@ def _traj_c() -> OnsetTrajectory:
     ev_c = np.zeros((21, 2), dtype=bool)
     ev_c[1, 1] = True
     ev_c[6:, 1] = True
-    return OnsetTrajectory(
-        "C", ref_t, ref_c, ev_t, ev_c, np.array([0.25, 1.0, 2.0]), np.array([0.0, 0.75, 1.75])
-    )
+    return OnsetTrajectory("C", ref_t, ref_c, ev_t, ev_c, np.array([0.25, 1.0, 2.0]), np.array([0.0, 0.75, 1.75]))
 
 
 def test_onset_error_known_answers() -> None:
@@ -291,7 +294,12 @@ def test_onset_error_known_answers() -> None:
     p = res.pairs
     assert list(p.columns) == ["trajectory", "region", "t_ref_onset", "t_eval_onset", "error_ms", "valid"]
     assert list(zip(p["trajectory"], p["region"], strict=True)) == [
-        ("A", "T1"), ("A", "P1"), ("B", "T1"), ("B", "P1"), ("C", "T1"), ("C", "P1")
+        ("A", "T1"),
+        ("A", "P1"),
+        ("B", "T1"),
+        ("B", "P1"),
+        ("C", "T1"),
+        ("C", "P1"),
     ]
     assert p["valid"].tolist() == [True, True, False, False, False, True]
     np.testing.assert_allclose(p["t_ref_onset"], [0.3, 0.0, np.nan, 0.4, np.nan, 0.3])
@@ -350,9 +358,7 @@ def _to_long(tr: OnsetTrajectory, source: str, reference_id: str) -> tuple[pd.Da
             rows.append((source, "m", "pick", "s1", tr.trajectory, reference_id, t, t, region, c))
     tm = pd.DataFrame(columns=["recording_id", "t", "t_ref"])
     if tr.time_map_t is not None:
-        tm = pd.DataFrame(
-            {"recording_id": tr.trajectory, "t": tr.time_map_t, "t_ref": tr.time_map_t_ref}
-        )
+        tm = pd.DataFrame({"recording_id": tr.trajectory, "t": tr.time_map_t, "t_ref": tr.time_map_t_ref})
     return _long(rows), tm
 
 
@@ -364,7 +370,10 @@ def test_onset_error_long_matches_record_form() -> None:
     rec = onset_error_ms([_traj_a(), _traj_c()], regions=REGIONS2)
     assert res.e_ms == pytest.approx(rec.e_ms)
     assert (res.n, res.n_missing_reference, res.n_missing_evaluated, res.n_missing_both) == (
-        rec.n, rec.n_missing_reference, rec.n_missing_evaluated, rec.n_missing_both
+        rec.n,
+        rec.n_missing_reference,
+        rec.n_missing_evaluated,
+        rec.n_missing_both,
     )
     base = ["trajectory", "region", "t_ref_onset", "t_eval_onset", "error_ms", "valid"]
     pd.testing.assert_frame_equal(res.pairs[base], rec.pairs[base], check_exact=False)

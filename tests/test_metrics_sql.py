@@ -46,25 +46,40 @@ def _human(rng: np.random.Generator, seq: str, task: str, subject: str) -> pd.Da
 
 
 def _evaluated(
-    rng: np.random.Generator, source: str, method: str, seq: str, ref: pd.DataFrame | None,
-    ref_id: str, task: str, subject: str,
+    rng: np.random.Generator,
+    source: str,
+    method: str,
+    seq: str,
+    ref: pd.DataFrame | None,
+    ref_id: str,
+    task: str,
+    subject: str,
 ) -> pd.DataFrame:
     ref_t = np.unique(ref["t_ref"]) if ref is not None else np.array([0.0, 1.0])
     # Non-uniform, partly unsorted t_ref: some before the first reference sample (dropped),
     # some exactly on reference samples (the `>=` edge), some past the end.
     n = int(rng.integers(20, 50))
-    t_ref = np.concatenate([
-        rng.uniform(ref_t[0] - 0.2, ref_t[-1] + 0.2, size=n),
-        rng.choice(ref_t, size=5),
-        [ref_t[0] - 1e-9],
-    ])
+    t_ref = np.concatenate(
+        [
+            rng.uniform(ref_t[0] - 0.2, ref_t[-1] + 0.2, size=n),
+            rng.choice(ref_t, size=5),
+            [ref_t[0] - 1e-9],
+        ]
+    )
     rng.shuffle(t_ref)
     frames = []
     for region in ROBOT_REGIONS:
         contact = rng.random(t_ref.size) < (0.0 if region == "P4" else 0.5)
-        frames.append(pd.DataFrame({
-            "t": np.arange(t_ref.size) * 0.02, "t_ref": t_ref, "region": region, "contact": contact,
-        }))
+        frames.append(
+            pd.DataFrame(
+                {
+                    "t": np.arange(t_ref.size) * 0.02,
+                    "t_ref": t_ref,
+                    "region": region,
+                    "contact": contact,
+                }
+            )
+        )
     return pd.concat(frames).assign(
         source=source, method=method, task=task, subject=subject, sequence_id=seq, reference_id=ref_id
     )
@@ -81,9 +96,9 @@ def _generate(seed: int) -> pd.DataFrame:
                 frames.append(human)
                 for source, methods in EVAL.items():
                     for method in methods:
-                        frames.append(_evaluated(
-                            rng, source, method, f"{source}_{method}_{hid}", human, hid, task, subject
-                        ))
+                        frames.append(
+                            _evaluated(rng, source, method, f"{source}_{method}_{hid}", human, hid, task, subject)
+                        )
     # An evaluated sequence whose reference is not in the lake: all of its samples drop.
     frames.append(_evaluated(rng, "sim", "m_a", "sim_orphan", None, "h_missing", "pick", "s1"))
     df = pd.concat(frames, ignore_index=True)
@@ -146,13 +161,11 @@ def test_score_slices_sql_equals_python(lake, eval_source: str, by: tuple[str, .
     con, df = lake
     rolled = [d for d in ("task", "subject", "region") if d not in by]
     kept = [d for d in ("task", "subject", "region") if d in by]
-    where = " AND ".join(
-        [f"{d} = '{ALL}'" for d in rolled] + [f"{d} <> '{ALL}'" for d in kept]
-    )
+    where = " AND ".join([f"{d} = '{ALL}'" for d in rolled] + [f"{d} <> '{ALL}'" for d in kept])
     sql = con.sql(
-        f"SELECT * EXCLUDE ({', '.join(rolled)}) FROM contact_score_slices('human', '{eval_source}') "
-        f"WHERE {where}" if rolled else
-        f"SELECT * FROM contact_score_slices('human', '{eval_source}') WHERE {where}"
+        f"SELECT * EXCLUDE ({', '.join(rolled)}) FROM contact_score_slices('human', '{eval_source}') WHERE {where}"
+        if rolled
+        else f"SELECT * FROM contact_score_slices('human', '{eval_source}') WHERE {where}"
     ).df()
     py = contact_scores_table(contact_counts_long(df, eval_source=eval_source), by=by)
     sql = _sorted(sql[list(py.columns)], list(by))
@@ -178,12 +191,16 @@ def test_sql_pairs_follow_align_to_reference_and_array_scores(lake) -> None:
         eval_cols.append(e["contact"].to_numpy()[kept])
     # Every region of the sequence shares its t_ref, so the kept samples form a (time, region) grid.
     py = contact_scores(np.column_stack(aligned_cols), np.column_stack(eval_cols), per_region=True)
-    sql = con.sql(
-        "SELECT region, count_if(ref_contact AND eval_contact) tp, "
-        "count_if(NOT ref_contact AND eval_contact) fp, count_if(ref_contact AND NOT eval_contact) fn, "
-        "count_if(NOT ref_contact AND NOT eval_contact) tn "
-        f"FROM contact_pairs('human', 'real') WHERE sequence_id = '{seq}' GROUP BY region"
-    ).df().set_index("region")
+    sql = (
+        con.sql(
+            "SELECT region, count_if(ref_contact AND eval_contact) tp, "
+            "count_if(NOT ref_contact AND eval_contact) fp, count_if(ref_contact AND NOT eval_contact) fn, "
+            "count_if(NOT ref_contact AND NOT eval_contact) tn "
+            f"FROM contact_pairs('human', 'real') WHERE sequence_id = '{seq}' GROUP BY region"
+        )
+        .df()
+        .set_index("region")
+    )
     for region, s in py.regions.items():
         assert tuple(int(x) for x in sql.loc[region, list(COUNT_COLUMNS)]) == (s.tp, s.fp, s.fn, s.tn)
     # The dropped samples are exactly those before the first reference sample.
@@ -197,9 +214,7 @@ def test_sql_pairs_follow_align_to_reference_and_array_scores(lake) -> None:
 
 def test_orphan_sequence_is_dropped(lake) -> None:
     con, _ = lake
-    n = con.execute(
-        "SELECT count(*) FROM contact_pairs('human', 'sim') WHERE sequence_id = 'sim_orphan'"
-    ).fetchone()[0]
+    n = con.execute("SELECT count(*) FROM contact_pairs('human', 'sim') WHERE sequence_id = 'sim_orphan'").fetchone()[0]
     assert n == 0
 
 

@@ -19,7 +19,16 @@ from conftest import scripted_rollout_rows
 from touch2robot import lake as lake_io
 from touch2robot.config import load_profile
 from touch2robot.policy.config import VIDEO_BACKEND
-from touch2robot.policy.dataset import ACTION_NAMES, STATE_NAMES, TASK_INSTRUCTIONS, RolloutError, build_dataset, common_demonstrations, read_rollouts, sources
+from touch2robot.policy.dataset import (
+    ACTION_NAMES,
+    STATE_NAMES,
+    TASK_INSTRUCTIONS,
+    RolloutError,
+    build_dataset,
+    common_demonstrations,
+    read_rollouts,
+    sources,
+)
 from touch2robot.policy.evaluate import wilson_interval
 from touch2robot.policy.reader import column_views
 from touch2robot.policy.train import lerobot_train_args, pipeline_config
@@ -32,7 +41,13 @@ CONFIG = load_profile("smoke").policy
 @pytest.fixture(scope="module")
 def lake(tmp_path_factory: pytest.TempPathFactory) -> Path:
     lake = tmp_path_factory.mktemp("policy") / "lake"
-    lake_io.write_rows(lake, "rollouts", "teacher-pick", scripted_rollout_rows("pick", "contrack", 3, 30), partition={"method": "contrack"})
+    lake_io.write_rows(
+        lake,
+        "rollouts",
+        "teacher-pick",
+        scripted_rollout_rows("pick", "contrack", 3, 30),
+        partition={"method": "contrack"},
+    )
     kinematic = scripted_rollout_rows("pick", "contrack", 1, 10, origin="kinematic", seed=1)
     lake_io.write_rows(lake, "rollouts", "kinematic-pick", kinematic, partition={"method": "contrack"})
     lake_io.write_rows(lake, "rollouts", "kinematic-drawer", scripted_rollout_rows("drawer", "dex-retargeting", 2, 12, origin="kinematic"),
@@ -67,12 +82,20 @@ def test_one_episode_per_demonstration_and_the_same_demonstrations_for_every_met
     teacher = lake_io.file_path(lake, "rollouts", "teacher-pick", {"method": "contrack"})
     kinematic = lake_io.file_path(lake, "rollouts", "kinematic-pick", {"method": "contrack"})
     assert common_demonstrations([teacher, kinematic]) == ["scripted-000"]
-    assert [r.rollout_id[-3:] for r in read_rollouts(teacher, references=["scripted-002", "scripted-000"])] == ["002", "000"]
+    assert [r.rollout_id[-3:] for r in read_rollouts(teacher, references=["scripted-002", "scripted-000"])] == [
+        "002",
+        "000",
+    ]
     # a deterministic teacher's repeats of one demonstration are one episode: the first rollout
     table = pq.read_table(teacher)
     repeats = tmp_path / "method=contrack" / "teacher-pick.parquet"
     repeats.parent.mkdir()
-    pq.write_table(table.set_column(table.schema.get_field_index("reference_id"), "reference_id", pa.array(["scripted-000"] * len(table))), repeats)
+    pq.write_table(
+        table.set_column(
+            table.schema.get_field_index("reference_id"), "reference_id", pa.array(["scripted-000"] * len(table))
+        ),
+        repeats,
+    )
     assert [r.rollout_id for r in read_rollouts(repeats, references=["scripted-000"])] == ["teacher-contrack-pick-000"]
     with pytest.raises(RolloutError, match=r"teacher-pick.parquet: no rollout follows demonstration\(s\) \['nobody'\]"):
         read_rollouts(teacher, references=["nobody"])
@@ -83,7 +106,13 @@ def test_policy_sources_share_their_demonstrations_per_task(tmp_path: Path) -> N
     from touch2robot.settings import DataLayout
 
     layout = DataLayout(tmp_path / "data")
-    lake_io.write_rows(layout.lake, "rollouts", "teacher-pick", scripted_rollout_rows("pick", "contrack", 3, 4), partition={"method": "contrack"})
+    lake_io.write_rows(
+        layout.lake,
+        "rollouts",
+        "teacher-pick",
+        scripted_rollout_rows("pick", "contrack", 3, 4),
+        partition={"method": "contrack"},
+    )
     lake_io.write_rows(layout.lake, "rollouts", "kinematic-pick", scripted_rollout_rows("pick", "dex-retargeting", 2, 4, origin="kinematic"),
                        partition={"method": "dex-retargeting"})  # fmt: skip
     found = {s["method"]: s["references"] for s in rollout_sources(str(layout.root), CONFIG)}
@@ -119,7 +148,9 @@ def test_dataset_round_trips_through_lerobots_loader(dataset) -> None:
     assert forces.max() > 0.5  # the scripted grasp touches the box: tactile forces are recorded
 
 
-def test_column_views_give_lerobots_samples_decoding_only_the_window_images(dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_column_views_give_lerobots_samples_decoding_only_the_window_images(
+    dataset, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     import pickle
 
     import datasets.features.image as hf_image
@@ -131,7 +162,9 @@ def test_column_views_give_lerobots_samples_decoding_only_the_window_images(data
     column_views(viewed)
     decodes = []
     real_decode = hf_image.Image.decode_example
-    monkeypatch.setattr(hf_image.Image, "decode_example", lambda self, *a, **k: decodes.append(1) or real_decode(self, *a, **k))
+    monkeypatch.setattr(
+        hf_image.Image, "decode_example", lambda self, *a, **k: decodes.append(1) or real_decode(self, *a, **k)
+    )
     counts = {}
     for name, ds in (("plain", plain), ("viewed", viewed)):
         decodes.clear()

@@ -28,7 +28,13 @@ CONFIG = load_profile("smoke").policy
 def trained(tmp_path_factory: pytest.TempPathFactory):
     torch.set_num_threads(1)
     base = tmp_path_factory.mktemp("policy-train")
-    lake_io.write_rows(base / "lake", "rollouts", "teacher-pick", scripted_rollout_rows("pick", "touch2robot", 4, 30), partition={"method": "touch2robot"})
+    lake_io.write_rows(
+        base / "lake",
+        "rollouts",
+        "teacher-pick",
+        scripted_rollout_rows("pick", "touch2robot", 4, 30),
+        partition={"method": "touch2robot"},
+    )
     src = sources(base / "lake")[0]
     sim = SimConfig(threads=1)
     rollouts = read_rollouts(src.path)
@@ -67,7 +73,9 @@ def test_a_resumed_training_equals_the_uninterrupted_one(trained, crashed_at: in
 
     summary, _, result, _, base = trained
     sampled = summary.frames - summary.episodes * (CONFIG.horizon - CONFIG.n_action_steps - CONFIG.n_obs_steps + 1)
-    assert compute_sampler_state(crashed_at, sampled, CONFIG.batch_size, 1) == ({"epoch": 2, "start_index": 0} if crashed_at == 24 else {"epoch": 2, "start_index": 64})
+    assert compute_sampler_state(crashed_at, sampled, CONFIG.batch_size, 1) == (
+        {"epoch": 2, "start_index": 0} if crashed_at == 24 else {"epoch": 2, "start_index": 64}
+    )
     checkpoints = tmp_path / "resumed" / "checkpoints"
     shutil.copytree(base / "out" / "checkpoints" / f"{crashed_at:06d}", checkpoints / f"{crashed_at:06d}")
     (checkpoints / "last").symlink_to(f"{crashed_at:06d}")
@@ -85,7 +93,15 @@ def test_a_time_budget_or_a_stop_ends_training_early_with_a_checkpoint_to_resume
     assert cut.steps == 1 and np.isfinite(cut.last_loss)
     assert last_checkpoint(base / "timed") == Path(cut.policy_dir).parent
     logs: list[tuple[int, dict]] = []
-    more = train(Path(summary.root), summary.repo_id, CONFIG, base / "timed", steps=total, on_log=lambda s, m: logs.append((s, m)), should_stop=lambda: True)
+    more = train(
+        Path(summary.root),
+        summary.repo_id,
+        CONFIG,
+        base / "timed",
+        steps=total,
+        on_log=lambda s, m: logs.append((s, m)),
+        should_stop=lambda: True,
+    )
     assert more.resumed_from == 1 and more.steps == 2
     # the learning rate follows the schedule of ``total`` updates: right after the smoke profile's
     # 2 warm-up updates it is at its peak (a schedule of 2 updates would have decayed it to 0)
@@ -97,7 +113,9 @@ def test_a_time_budget_or_a_stop_ends_training_early_with_a_checkpoint_to_resume
     assert (again.first_loss, again.last_loss) == (cut.first_loss, more.last_loss)
 
 
-def test_training_where_cuda_is_available_logs_the_peak_gpu_memory(trained, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_training_where_cuda_is_available_logs_the_peak_gpu_memory(
+    trained, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """LeRobot's update step records the peak GPU memory wherever CUDA is available, into a meter
     the training loop must provide: without it every training on a GPU machine stopped at its first
     update (seen on an H200). Here the CPU runs the updates and only LeRobot's update step is told
@@ -105,7 +123,9 @@ def test_training_where_cuda_is_available_logs_the_peak_gpu_memory(trained, tmp_
     from lerobot.scripts import lerobot_train
 
     class TorchWithCuda(types.ModuleType):
-        cuda = types.SimpleNamespace(is_available=lambda: True, max_memory_allocated=lambda: 3 * 2**30, reset_peak_memory_stats=lambda: None)
+        cuda = types.SimpleNamespace(
+            is_available=lambda: True, max_memory_allocated=lambda: 3 * 2**30, reset_peak_memory_stats=lambda: None
+        )
 
         def __getattr__(self, name: str):
             return getattr(torch, name)
@@ -114,7 +134,9 @@ def test_training_where_cuda_is_available_logs_the_peak_gpu_memory(trained, tmp_
     summary = trained[0]
     logs: list[tuple[int, dict]] = []
     cfg = CONFIG.model_copy(update={"log_freq": 1})
-    result = train(Path(summary.root), summary.repo_id, cfg, tmp_path / "out", steps=2, on_log=lambda s, m: logs.append((s, m)))
+    result = train(
+        Path(summary.root), summary.repo_id, cfg, tmp_path / "out", steps=2, on_log=lambda s, m: logs.append((s, m))
+    )
     assert result.steps == 2
     assert [m["gpu_mem_gb"] for _, m in logs] == [3.0, 3.0]
 
@@ -124,7 +146,11 @@ def test_closed_loop_executes_16_predicted_actions_then_replans(trained) -> None
     sim = SimConfig(threads=1)
     scene = build_scene("pick", sim)
     policy, pre, post = load_policy(Path(result.policy_dir), "cpu")
-    assert (policy.config.horizon, policy.config.n_action_steps, policy.config.n_obs_steps) == (24, 16, CONFIG.n_obs_steps)
+    assert (policy.config.horizon, policy.config.n_action_steps, policy.config.n_obs_steps) == (
+        24,
+        16,
+        CONFIG.n_obs_steps,
+    )
     chunks: list[torch.Tensor] = []
     predict = policy.predict_action_chunk
 
@@ -174,14 +200,24 @@ def test_replayed_demonstrations_reproduce_their_rollouts(tmp_path: Path) -> Non
     import pyarrow.parquet as pq
 
     # scripted drawer pulls: each copy opens the drawer by its own amount, so progress tells them apart
-    path = lake_io.write_rows(tmp_path / "lake", "rollouts", "teacher-drawer", scripted_rollout_rows("drawer", "contrack", 4, 30), partition={"method": "contrack"})
+    path = lake_io.write_rows(
+        tmp_path / "lake",
+        "rollouts",
+        "teacher-drawer",
+        scripted_rollout_rows("drawer", "contrack", 4, 30),
+        partition={"method": "contrack"},
+    )
     rollouts = read_rollouts(path)
     sim = SimConfig(threads=1)
     scene = build_scene("drawer", sim)
     starts = episode_starts(scene, rollouts, 6, seed=0, object_noise_m=CONFIG.object_noise_m)
     steps = len(rollouts[0]) - 1  # the state after T-1 commands is the rollout's last row
     out = replay_demonstrations(scene, sim, starts, CONFIG.model_copy(update={"eval_batch": 4}), steps=steps)
-    last = {r["rollout_id"]: r["progress"] for r in pq.read_table(path, columns=["rollout_id", "step", "progress"]).to_pylist() if r["step"] == steps}
+    last = {
+        r["rollout_id"]: r["progress"]
+        for r in pq.read_table(path, columns=["rollout_id", "step", "progress"]).to_pylist()
+        if r["step"] == steps
+    }
     assert len(set(last.values())) == 4 and len(set(starts.source)) > 1
     assert out.steps == steps and out.replans == 0
     np.testing.assert_allclose(out.progress, [last[i] for i in starts.source], atol=1e-9)
@@ -196,13 +232,36 @@ def test_policy_flow_fills_policy_eval_and_mlflow(tmp_path: Path) -> None:
     from touch2robot.settings import DataLayout
 
     layout = DataLayout(tmp_path / "data")
-    lake_io.write_rows(layout.lake, "rollouts", "teacher-pick", scripted_rollout_rows("pick", "contrack", 2, 24), partition={"method": "contrack"})
-    lake_io.write_rows(layout.lake, "rollouts", "teacher-pick", scripted_rollout_rows("pick", "dexmachina", 2, 24), partition={"method": "dexmachina"})
+    lake_io.write_rows(
+        layout.lake,
+        "rollouts",
+        "teacher-pick",
+        scripted_rollout_rows("pick", "contrack", 2, 24),
+        partition={"method": "contrack"},
+    )
+    lake_io.write_rows(
+        layout.lake,
+        "rollouts",
+        "teacher-pick",
+        scripted_rollout_rows("pick", "dexmachina", 2, 24),
+        partition={"method": "dexmachina"},
+    )
     rows = policy(profile="smoke", data=str(layout.root), methods=["contrack"])  # the filter leaves one of the two
-    assert [(r["task"], r["method"], r["origin"], r["episodes"], r["dataset_episodes"]) for r in rows] == [("pick", "contrack", "teacher", CONFIG.eval_episodes, 2)]
+    assert [(r["task"], r["method"], r["origin"], r["episodes"], r["dataset_episodes"]) for r in rows] == [
+        ("pick", "contrack", "teacher", CONFIG.eval_episodes, 2)
+    ]
     table = catalog.query(layout, "SELECT task, method, episodes, ci_low <= success_rate AND success_rate <= ci_high AS inside, "
                                   "fit_wrist_err_mm > 0 AND hold_wrist_err_mm > 0 AS fitted, replay_successes BETWEEN 0 AND episodes AS replayed FROM policy_eval")  # fmt: skip
-    assert table.to_pylist() == [{"task": "pick", "method": "contrack", "episodes": CONFIG.eval_episodes, "inside": True, "fitted": True, "replayed": True}]
+    assert table.to_pylist() == [
+        {
+            "task": "pick",
+            "method": "contrack",
+            "episodes": CONFIG.eval_episodes,
+            "inside": True,
+            "fitted": True,
+            "replayed": True,
+        }
+    ]
     tracking.experiment(layout, "policy")
     run = mlflow.get_run(rows[0]["mlflow_run"])
     assert {"train/loss", "eval/success_rate", "fit/wrist_err_mm", "fit/hold_wrist_err_mm"} <= set(run.data.metrics)
@@ -232,7 +291,13 @@ def test_a_policy_trained_beside_another_equals_it_trained_alone(tmp_path: Path)
     for name, methods in (("alone", ["contrack"]), ("paired", ["contrack", "dexmachina"])):
         layout = DataLayout(tmp_path / name)
         for method in ("contrack", "dexmachina"):
-            lake_io.write_rows(layout.lake, "rollouts", "teacher-pick", scripted_rollout_rows("pick", method, 2, 24), partition={"method": method})
+            lake_io.write_rows(
+                layout.lake,
+                "rollouts",
+                "teacher-pick",
+                scripted_rollout_rows("pick", method, 2, 24),
+                partition={"method": method},
+            )
         out = policy(profile=str(profile), data=str(layout.root), methods=methods)
         rows[name] = next({k: v for k, v in r.items() if k != "mlflow_run"} for r in out if r["method"] == "contrack")
     assert rows["paired"]["final_loss"] == rows["alone"]["final_loss"]

@@ -17,9 +17,20 @@ from touch2robot.recording.writer import RecordingWriter
 
 def _messages(rng: np.random.Generator) -> dict[str, tuple[str, bytes]]:
     return {
-        "tactile": ("touch2robot_msgs/msg/TactileArray", cdr.encode_tactile(123_456_789_012, "glove_right", rng.normal(size=256))),
-        "joints": ("sensor_msgs/msg/JointState", cdr.encode_joint_state(5, "leap", LEAP_JOINT_NAMES, rng.normal(size=16), rng.normal(size=16), rng.normal(size=16))),
-        "pose": ("geometry_msgs/msg/PoseStamped", cdr.encode_pose_stamped(7, "world", rng.normal(size=3), np.array([0.5, 0.5, 0.5, 0.5]))),
+        "tactile": (
+            "touch2robot_msgs/msg/TactileArray",
+            cdr.encode_tactile(123_456_789_012, "glove_right", rng.normal(size=256)),
+        ),
+        "joints": (
+            "sensor_msgs/msg/JointState",
+            cdr.encode_joint_state(
+                5, "leap", LEAP_JOINT_NAMES, rng.normal(size=16), rng.normal(size=16), rng.normal(size=16)
+            ),
+        ),
+        "pose": (
+            "geometry_msgs/msg/PoseStamped",
+            cdr.encode_pose_stamped(7, "world", rng.normal(size=3), np.array([0.5, 0.5, 0.5, 0.5])),
+        ),
         "poses": ("geometry_msgs/msg/PoseArray", cdr.encode_pose_array(9, "world", rng.normal(size=(21, 3)))),
         "reftime": ("touch2robot_msgs/msg/ReferenceTime", cdr.encode_reference_time(11, "leap", 3.25)),
     }
@@ -28,7 +39,11 @@ def _messages(rng: np.random.Generator) -> dict[str, tuple[str, bytes]]:
 def test_batch_decoding_equals_per_message_decoding() -> None:
     rng = np.random.default_rng(0)
     for msg_type, _ in _messages(rng).values():
-        payloads = [m for t, m in (_messages(np.random.default_rng(s))[k] for s in range(5) for k in _messages(rng)) if t == msg_type]
+        payloads = [
+            m
+            for t, m in (_messages(np.random.default_rng(s))[k] for s in range(5) for k in _messages(rng))
+            if t == msg_type
+        ]
         batch = cdr.decode_batch(msg_type, payloads)
         for i, p in enumerate(payloads):
             one = cdr.decode(msg_type, p)
@@ -53,7 +68,13 @@ def test_truncated_message_is_a_clear_error() -> None:
 
 
 def _write_replay(path: Path) -> None:
-    meta = {"task": "pick", "subject": "s01", "method": "touch2robot", "reference_recording": "g.mcap", "calibration_recording": "c.mcap"}
+    meta = {
+        "task": "pick",
+        "subject": "s01",
+        "method": "touch2robot",
+        "reference_recording": "g.mcap",
+        "calibration_recording": "c.mcap",
+    }
     with RecordingWriter(path, "robot_replay", meta) as w:
         for i in range(3):
             s = 1_000_000_000 + i * 10_000_000
@@ -66,7 +87,9 @@ def test_mcap_ros2_decoder_reads_our_files(tmp_path: Path) -> None:
     path = tmp_path / "replay.mcap"
     _write_replay(path)
     with open(path, "rb") as f:
-        decoded = [(c.topic, m) for _, c, _, m in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages()]
+        decoded = [
+            (c.topic, m) for _, c, _, m in make_reader(f, decoder_factories=[DecoderFactory()]).iter_decoded_messages()
+        ]
     tactile = [m for t, m in decoded if t == "/twintac/raw"]
     assert [list(m.values)[:3] for m in tactile] == [[0, 1, 2], [1, 2, 3], [2, 3, 4]]
     states = [m for t, m in decoded if t == "/leap/joint_states"]

@@ -6,7 +6,7 @@
     the next run takes the finished tasks from the cache instead of running them again.
 (c) The same for the command a user types: `touch2robot ingest` killed with SIGKILL,
     its own pid only (as the OOM killer or `kill -9 <pid>` does), leaves nothing running:
-    its Prefect API server dies with it (touch2robot.local_server).
+    its Prefect API server dies with it (app.local_server).
 
 Flows run in subprocesses (own session each, killed as a group at the end): Prefect
 fixes its settings per process, and (b) needs a process to kill."""
@@ -67,7 +67,6 @@ def start_flow(module: str, flow: str, data: Path, log: Path) -> subprocess.Pope
         )  # fmt: skip
 
 
-
 @pytest.fixture
 def processes() -> Iterator[list[subprocess.Popen]]:
     """Flow processes a test starts; their groups are killed at the end, pass or fail."""
@@ -118,7 +117,9 @@ def rows_per_recording(lake: Path) -> dict[tuple[str, str], int]:
         for table in sorted(p.name for p in lake.iterdir() if p.is_dir()):
             glob = (lake / table).as_posix() + "/**/*.parquet"
             column = "sequence_id" if table == "contacts" else "recording_id"
-            for rid, n in con.execute(f"SELECT {column}, count(*) FROM read_parquet('{glob}', hive_partitioning = true) GROUP BY 1").fetchall():
+            for rid, n in con.execute(
+                f"SELECT {column}, count(*) FROM read_parquet('{glob}', hive_partitioning = true) GROUP BY 1"
+            ).fetchall():
                 counts[(table, rid)] = n
         return counts
     finally:
@@ -147,7 +148,10 @@ def test_two_concurrent_ingests_on_one_folder(tmp_path: Path, processes: list[su
 
     con = duckdb.connect(str(data / "catalog.duckdb"), read_only=True)
     try:
-        assert con.execute("SELECT count(*), count(DISTINCT recording_id) FROM recordings").fetchone() == (len(files), len(files))
+        assert con.execute("SELECT count(*), count(DISTINCT recording_id) FROM recordings").fetchone() == (
+            len(files),
+            len(files),
+        )
         for (table, rid), n in expected.items():
             got = con.execute(f"SELECT count(*) FROM {table} WHERE recording_id = ?", [rid]).fetchone()[0]
             assert got == n, f"{table} holds {got} rows of {rid}, one ingest writes {n}"
@@ -160,7 +164,9 @@ def test_two_concurrent_ingests_on_one_folder(tmp_path: Path, processes: list[su
     assert not list((data / "lake").rglob("*.tmp")), "a half-written file was left behind"
 
 
-def kill_once_results_persist(proc: subprocess.Popen, results: Path, log: Path, data: Path, group: bool) -> dict[str, int]:
+def kill_once_results_persist(
+    proc: subprocess.Popen, results: Path, log: Path, data: Path, group: bool
+) -> dict[str, int]:
     """SIGKILL ``proc`` (its whole process group if ``group``) once a few task results are
     persisted; check nothing of it stays running; the results that were whole at the kill
     (name -> mtime)."""
@@ -190,7 +196,9 @@ def kill_once_results_persist(proc: subprocess.Popen, results: Path, log: Path, 
     return done_before
 
 
-def test_sigkill_mid_run_leaves_no_server_and_the_rerun_uses_the_cache(tmp_path: Path, processes: list[subprocess.Popen]) -> None:
+def test_sigkill_mid_run_leaves_no_server_and_the_rerun_uses_the_cache(
+    tmp_path: Path, processes: list[subprocess.Popen]
+) -> None:
     data = tmp_path / "data"
     results = data / "prefect" / "results"
     first_log = tmp_path / "first.log"
@@ -220,11 +228,13 @@ def test_sigkill_of_the_command_alone_leaves_nothing_running_and_the_rerun_resum
     shutil.copytree(smoke_data / "recordings", data / "recordings")
     files = len(list((data / "recordings").glob("*.mcap")))
     results = data / "prefect" / "results"
-    command = [sys.executable, "-m", "touch2robot.cli", "ingest", "--data", str(data)]
+    command = [sys.executable, "-m", "app.cli", "ingest", "--data", str(data)]
 
     def launch(log: Path) -> subprocess.Popen:
         with open(log, "w") as out:
-            proc = subprocess.Popen(command, cwd=ROOT, env=flow_env(data), stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+            proc = subprocess.Popen(
+                command, cwd=ROOT, env=flow_env(data), stdout=out, stderr=subprocess.STDOUT, start_new_session=True
+            )
         processes.append(proc)
         return proc
 
@@ -249,7 +259,9 @@ def test_sigkill_of_the_command_alone_leaves_nothing_running_and_the_rerun_resum
     con = duckdb.connect(str(data / "catalog.duckdb"), read_only=True)
     try:
         assert con.execute("SELECT count(*), count(DISTINCT recording_id) FROM recordings").fetchone() == (files, files)
-        total, distinct = con.execute("SELECT count(*), count(DISTINCT (source, sequence_id, t, region)) FROM contacts").fetchone()
+        total, distinct = con.execute(
+            "SELECT count(*), count(DISTINCT (source, sequence_id, t, region)) FROM contacts"
+        ).fetchone()
         assert total == distinct > 0, "duplicate contact rows"
     finally:
         con.close()
@@ -268,4 +280,3 @@ def test_the_library_code_key_follows_the_code_not_the_checkout_folder(tmp_path:
     assert code_digest(tmp_path / "worktree" / "pkg" / "__init__.py") != here
     (tmp_path / "checkout" / "pkg" / "sub" / "stage.py").rename(tmp_path / "checkout" / "pkg" / "sub" / "other.py")
     assert code_digest(tmp_path / "checkout" / "pkg" / "__init__.py") != here  # a moved file is a code change
-

@@ -67,9 +67,17 @@ def demos(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple[HandMotio
     out = {}
     for task in TASKS:
         stem = f"{task}_s01_d01_glove"
-        rid = next(p.stem for p in (layout.lake / "recordings").glob("*.parquet") if stem in pq.read_table(p)["path"][0].as_py())
+        rid = next(
+            p.stem
+            for p in (layout.lake / "recordings").glob("*.parquet")
+            if stem in pq.read_table(p)["path"][0].as_py()
+        )
         motion = load_hand_motion(layout.lake, rid)
-        out[task] = (motion, retarget_motion(motion, LEAP_DEFAULT, retargeter), layout.groundtruth / f"{stem}.motion.parquet")
+        out[task] = (
+            motion,
+            retarget_motion(motion, LEAP_DEFAULT, retargeter),
+            layout.groundtruth / f"{stem}.motion.parquet",
+        )
     return out
 
 
@@ -86,7 +94,12 @@ def test_urdf_kinematics_match_the_hand_description(retargeter: Retargeter) -> N
     for _ in range(5):
         q = rng.uniform(kin.lower, kin.upper)
         tips = hd.tip_positions_in_palm(dict(zip(hd.JOINT_NAMES, q)))
-        expected = np.stack([base_from_palm @ tips[s] + np.asarray(hd.PALM_IN_WRIST_POS) for s in ("th_tip", "if_tip", "mf_tip", "rf_tip")])
+        expected = np.stack(
+            [
+                base_from_palm @ tips[s] + np.asarray(hd.PALM_IN_WRIST_POS)
+                for s in ("th_tip", "if_tip", "mf_tip", "rf_tip")
+            ]
+        )
         np.testing.assert_allclose(kin.tip_positions(q), expected, atol=2e-5)
 
 
@@ -154,7 +167,10 @@ def test_the_simulated_hand_reproduces_the_retargeted_fingertips(demos: dict, re
         data.qpos[free + 3 : free + 7] = result.wrist_quat[i]
         data.qpos[hinges] = result.joints[i]
         mujoco.mj_kinematics(model, data)
-        expected = result.wrist_pos[i] + retargeter.kinematics.tip_positions(result.joints[i]) @ quat_to_mat(result.wrist_quat[i]).T
+        expected = (
+            result.wrist_pos[i]
+            + retargeter.kinematics.tip_positions(result.joints[i]) @ quat_to_mat(result.wrist_quat[i]).T
+        )
         np.testing.assert_allclose(data.site_xpos[sites], expected, atol=1e-4)
         # the documented offset: the robot palm origin sits at PALM_IN_HUMAN_WRIST in the human wrist frame
         palm = motion.wrist_pos[i] + quat_to_mat(motion.wrist_quat[i]) @ PALM_IN_HUMAN_WRIST
@@ -181,13 +197,20 @@ class _FailingOptimizer:
         return getattr(self._opt, name)
 
 
-@pytest.mark.parametrize("failure", ["nan_keypoints", "solver_runtime_error", "solver_roundoff"], ids=["nan-input", "runtime-error", "roundoff"])
+@pytest.mark.parametrize(
+    "failure",
+    ["nan_keypoints", "solver_runtime_error", "solver_roundoff"],
+    ids=["nan-input", "runtime-error", "roundoff"],
+)
 def test_a_failed_frame_holds_the_previous_solution_and_is_flagged(demos: dict, failure: str) -> None:
     motion, _, _ = demos["rotate"]
     frames, k = _frames(motion), 40
     rt = Retargeter(LEAP_DEFAULT)
     if failure != "nan_keypoints":
-        proxy = _FailingOptimizer(rt.optimizer.opt, RuntimeError("nlopt failure") if failure == "solver_runtime_error" else nlopt.RoundoffLimited())
+        proxy = _FailingOptimizer(
+            rt.optimizer.opt,
+            RuntimeError("nlopt failure") if failure == "solver_runtime_error" else nlopt.RoundoffLimited(),
+        )
         rt.optimizer.opt = proxy
     out, status = [], []
     for i in range(k + 3):
@@ -264,7 +287,9 @@ def test_scaling_follows_the_hand_size(demos: dict) -> None:
     assert result.scaling == pytest.approx(LEAP_DEFAULT.scaling * 0.2 / hand_length(motion))
     assert motion_scaling(motion, RetargetConfig(reference_hand_length=None)) == LEAP_DEFAULT.scaling
     keypoints, pose, t = _arrays(motion)
-    with pytest.raises(HandMotionError, match=r"recording mm-rec: hand length \d+\.\d+ m from the keypoints is outside"):
+    with pytest.raises(
+        HandMotionError, match=r"recording mm-rec: hand length \d+\.\d+ m from the keypoints is outside"
+    ):
         retarget_sequence(keypoints * 1000.0, pose, t, recording_id="mm-rec")
 
 

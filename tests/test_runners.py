@@ -26,7 +26,7 @@ ROOT = Path(__file__).resolve().parents[1]
 # Run in a subprocess: builds each kind of runner, then runs tiny flows whose tasks
 # report where they ran, and prints one JSON object.
 PROBE = textwrap.dedent(
-    '''
+    """
     import json, os, sys
     import flows  # configures the environment before Prefect loads its settings
     from prefect import flow, task
@@ -90,9 +90,8 @@ PROBE = textwrap.dedent(
     # Dask starts its workers with the spawn method, which re-imports this script
     if __name__ == "__main__":
         main()
-    '''
+    """
 )
-
 
 
 @pytest.fixture(scope="module")
@@ -102,7 +101,9 @@ def probe(tmp_path_factory: pytest.TempPathFactory) -> dict:
     script = tmp / "probe.py"
     script.write_text(PROBE)
     profile = str(tmp / "threads3.yaml")
-    Path(profile).write_text("name: threads3\nrunner:\n  kind: threads\n  max_workers: 3\ntraining_runner:\n  max_workers: 2\n")
+    Path(profile).write_text(
+        "name: threads3\nrunner:\n  kind: threads\n  max_workers: 3\ntraining_runner:\n  max_workers: 2\n"
+    )
     env = {
         **os.environ,
         "TOUCH2ROBOT_DATA": str(tmp / "data"),
@@ -128,7 +129,10 @@ def probe(tmp_path_factory: pytest.TempPathFactory) -> dict:
 
 def test_runner_config_defaults_and_validation() -> None:
     assert RunnerConfig() == RunnerConfig(kind="threads", max_workers=None, dask_address=None, n_workers=2)
-    assert RunnerConfig.model_validate({"kind": "dask", "dask_address": "tcp://10.0.0.5:8786"}).dask_address == "tcp://10.0.0.5:8786"
+    assert (
+        RunnerConfig.model_validate({"kind": "dask", "dask_address": "tcp://10.0.0.5:8786"}).dask_address
+        == "tcp://10.0.0.5:8786"
+    )
     with pytest.raises(ValidationError, match="only used with kind 'dask'"):
         RunnerConfig(kind="threads", dask_address="tcp://scheduler:8786")
     with pytest.raises(ValidationError, match="needs a scheme"):
@@ -216,8 +220,12 @@ def test_a_training_asked_to_stop_checkpoints_then_stops_as_asked() -> None:
     """checkpoint_on_stop: the first SIGTERM turns the check true and the second waits for the
     checkpoint too; leaving the block delivers SIGTERM as before (the process ends with it). An
     ignored signal stays ignored, and off the main thread the check stays false."""
-    proc = subprocess.run([sys.executable, "-c", CHECKPOINT_ON_STOP], cwd=ROOT, capture_output=True, text=True, timeout=120)
-    assert proc.stdout.splitlines() == ["thread [False]", "ignored SIGINT False", "SIGTERM twice True", "checkpoint"], proc.stderr[-3000:]
+    proc = subprocess.run(
+        [sys.executable, "-c", CHECKPOINT_ON_STOP], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+    assert proc.stdout.splitlines() == ["thread [False]", "ignored SIGINT False", "SIGTERM twice True", "checkpoint"], (
+        proc.stderr[-3000:]
+    )
     assert proc.returncode == -signal.SIGTERM, proc.stderr[-3000:]
 
 
@@ -252,12 +260,12 @@ LONG_TRAININGS = textwrap.dedent(
             f.result()
     """
 )
-# ...run as the CLI runs a flow: its own API server, SIGTERM handled (touch2robot.cli)
+# ...run as the CLI runs a flow: its own API server, SIGTERM handled (app.cli)
 RUN_AS_CLI = textwrap.dedent(
     """
     import sys
     from pathlib import Path
-    from touch2robot.cli import _layout, _run_flow
+    from app.cli import _layout, _run_flow
 
     if __name__ == "__main__":  # the pool's workers (spawned) import this script again
         _layout(Path(sys.argv[1]))

@@ -178,15 +178,22 @@ def test_pick_box_can_be_grasped_and_lifted_by_the_servos() -> None:
 
     def grip(reach: float, lift: float = 0.0) -> np.ndarray:
         c = centre + [0.0, 0.0, lift]
-        return _fingertip_ik({"if_tip": c + [reach, 0.02, 0.0], "mf_tip": c + [reach, -0.02, 0.0], "th_tip": c - [reach, 0.0, 0.0]}, q0)
+        return _fingertip_ik(
+            {"if_tip": c + [reach, 0.02, 0.0], "mf_tip": c + [reach, -0.02, 0.0], "th_tip": c - [reach, 0.0, 0.0]}, q0
+        )
 
     q_open, q_close = grip(0.063, 0.01), grip(0.015)  # open around the 6 cm box; squeeze through it
     wrist_rot, palm_rot = quat_to_mat(env.scene.home_wrist_quat), quat_to_mat(np.asarray(hd.PALM_IN_WRIST_QUAT))
-    at_box = np.asarray(env.scene.spec.object.init_pos) - wrist_rot @ (np.asarray(hd.PALM_IN_WRIST_POS) + palm_rot @ centre)
+    at_box = np.asarray(env.scene.spec.object.init_pos) - wrist_rot @ (
+        np.asarray(hd.PALM_IN_WRIST_POS) + palm_rot @ centre
+    )
     start = env.wrist_pos[0].copy()
     for k in range(90):
         if k < 35:  # approach from above, open
-            wrist, q = start + min(k / 20, 1.0) * (at_box + [0, 0, 0.04] - start) - [0, 0, 0.04 * max(k - 20, 0) / 15], q_open
+            wrist, q = (
+                start + min(k / 20, 1.0) * (at_box + [0, 0, 0.04] - start) - [0, 0, 0.04 * max(k - 20, 0) / 15],
+                q_open,
+            )
         elif k < 55:  # close
             wrist, q = at_box, q_open + min((k - 35) / 15, 1.0) * (q_close - q_open)
         else:  # lift 10 cm

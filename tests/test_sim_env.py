@@ -155,5 +155,7 @@ def test_wrist_follows_a_world_pose_trajectory() -> None:
         env.step(env.joint_targets, pos[None], quat[None])
         errors.append(np.linalg.norm(env.wrist_pose[0, :3] - pos))
         angle_errors.append(abs(twist_angle(env.wrist_pose[0, 3:], quat0, np.array([0.0, 0.0, 1.0])) - yaw))
-    print(f"wrist tracking error while moving: {max(errors[5:]) * 1e3:.1f} mm, {np.degrees(max(angle_errors[5:])):.2f} deg")
+    print(
+        f"wrist tracking error while moving: {max(errors[5:]) * 1e3:.1f} mm, {np.degrees(max(angle_errors[5:])):.2f} deg"
+    )
     assert max(errors[5:]) < 0.01 and max(angle_errors[5:]) < np.radians(3)  # within 1 cm / 3 deg while moving

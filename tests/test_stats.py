@@ -23,8 +23,11 @@ def _scipy_reference(ratings: pd.DataFrame) -> tuple[list[float], list[float]]:
     for q in QUESTIONS:
         w = ratings[ratings["question"] == q].pivot(index="participant", columns="condition", values="rating")
         res = sps.wilcoxon(
-            w[CONDITIONS[0]].astype(float), w[CONDITIONS[1]].astype(float),
-            zero_method="wilcox", method="asymptotic", correction=False,
+            w[CONDITIONS[0]].astype(float),
+            w[CONDITIONS[1]].astype(float),
+            zero_method="wilcox",
+            method="asymptotic",
+            correction=False,
         )
         stats_.append(float(res.statistic))
         ps.append(float(res.pvalue))
@@ -98,24 +101,38 @@ def _ratings() -> pd.DataFrame:
 @pytest.mark.parametrize(
     ("mutate", "match"),
     [
-        (lambda d: d.drop(index=d.index[(d.participant == "P03") & (d.question == "Q2")
-                                        & (d.condition == "Touch2Robot")]),
-         "participant 'P03' lacks one condition for question 'Q2'"),
-        (lambda d: d.assign(rating=d.rating.where(~((d.participant == "P05") & (d.question == "Q4")), 8)),
-         r"participant 'P05', question 'Q4'.*not an integer in 1\.\.7"),
-        (lambda d: d.assign(rating=d.rating.where(~((d.participant == "P02") & (d.question == "Q1")), 0)),
-         r"participant 'P02', question 'Q1'"),
-        (lambda d: d.assign(rating=d.rating.astype(float).where(
-            ~((d.participant == "P07") & (d.question == "Q3")), 4.5)),
-         r"participant 'P07', question 'Q3'.*4\.5"),
-        (lambda d: d.assign(rating=d.rating.astype(object).where(
-            ~((d.participant == "P01") & (d.question == "Q1")), "high")),
-         r"participant 'P01', question 'Q1'.*'high'"),
+        (
+            lambda d: d.drop(
+                index=d.index[(d.participant == "P03") & (d.question == "Q2") & (d.condition == "Touch2Robot")]
+            ),
+            "participant 'P03' lacks one condition for question 'Q2'",
+        ),
+        (
+            lambda d: d.assign(rating=d.rating.where(~((d.participant == "P05") & (d.question == "Q4")), 8)),
+            r"participant 'P05', question 'Q4'.*not an integer in 1\.\.7",
+        ),
+        (
+            lambda d: d.assign(rating=d.rating.where(~((d.participant == "P02") & (d.question == "Q1")), 0)),
+            r"participant 'P02', question 'Q1'",
+        ),
+        (
+            lambda d: d.assign(
+                rating=d.rating.astype(float).where(~((d.participant == "P07") & (d.question == "Q3")), 4.5)
+            ),
+            r"participant 'P07', question 'Q3'.*4\.5",
+        ),
+        (
+            lambda d: d.assign(
+                rating=d.rating.astype(object).where(~((d.participant == "P01") & (d.question == "Q1")), "high")
+            ),
+            r"participant 'P01', question 'Q1'.*'high'",
+        ),
         (lambda d: d[d.question != "Q3"], "missing question 'Q3'"),
-        (lambda d: pd.concat([d, d[(d.participant == "P04") & (d.question == "Q1")].iloc[:1]]),
-         "duplicate rows for participant 'P04', question 'Q1'"),
-        (lambda d: d.assign(condition=d.condition.replace("Touch2Robot", "Haptics")),
-         "unknown condition 'Haptics'"),
+        (
+            lambda d: pd.concat([d, d[(d.participant == "P04") & (d.question == "Q1")].iloc[:1]]),
+            "duplicate rows for participant 'P04', question 'Q1'",
+        ),
+        (lambda d: d.assign(condition=d.condition.replace("Touch2Robot", "Haptics")), "unknown condition 'Haptics'"),
         (lambda d: d.assign(question=d.question.replace("Q4", "Q9")), "unexpected question 'Q9'"),
         (lambda d: d.drop(columns="rating"), r"missing columns \['rating'\]"),
     ],

@@ -34,7 +34,17 @@ from touch2robot.teachers.objective import NUM_ACTIONS, DemoTracking, stack_refe
 from touch2robot.teachers.reference import load_reference
 
 TEACHER = TeacherConfig(sim=SimConfig(n_envs=2, threads=1))
-TINY = StudentConfig(augmented_rollouts=16, d_model=32, ff_dim=64, pointnet_hidden=(32,), batch_size=16, steps=60, lr=1e-3, eval_interval=20, checkpoint_interval=30)
+TINY = StudentConfig(
+    augmented_rollouts=16,
+    d_model=32,
+    ff_dim=64,
+    pointnet_hidden=(32,),
+    batch_size=16,
+    steps=60,
+    lr=1e-3,
+    eval_interval=20,
+    checkpoint_interval=30,
+)
 TASKS = ["drawer", "pick", "rotate", "wipe"]
 
 
@@ -60,7 +70,9 @@ def student_lake(demo_lake: Path, tmp_path_factory: pytest.TempPathFactory) -> P
     for rec in recording_rows(lake).to_pylist():
         refs = stack_references([load_reference(lake, rec)])
         env = BatchEnv(build_scene(rec["task"], TEACHER.sim), TEACHER.sim, 2)
-        rows, contacts = ro.record(env, DemoTracking(refs, TEACHER, "touch2robot"), scripted_teacher, "touch2robot", "teacher")
+        rows, contacts = ro.record(
+            env, DemoTracking(refs, TEACHER, "touch2robot"), scripted_teacher, "touch2robot", "teacher"
+        )
         env.close()
         lake_io.write_rows(lake, "rollouts", f"teacher-{rec['task']}", rows, {"method": "touch2robot"})
         lake_io.write_rows(lake, "contacts", "teacher-touch2robot", contacts, {"source": "sim", "task": rec["task"]})
@@ -74,7 +86,9 @@ def references(student_lake: Path) -> dict:
 
 
 def _teacher_rows(root: Path, task: str) -> pa.Table:
-    return pq.read_table(lake_io.file_path(DataLayout(root).lake, "rollouts", f"teacher-{task}", {"method": "touch2robot"}))
+    return pq.read_table(
+        lake_io.file_path(DataLayout(root).lake, "rollouts", f"teacher-{task}", {"method": "touch2robot"})
+    )
 
 
 @pytest.fixture(scope="module")
@@ -111,9 +125,13 @@ def test_paired_steps_follow_the_teacher(student_lake: Path, references: dict) -
     # step j pairs frame j's kinematic joints with the command of row j - 1 (aimed at frame j)
     np.testing.assert_allclose(seq.target_joints, target[:-1])
     np.testing.assert_allclose(seq.joints, ro.column(first, "reference_joints")[1:])
-    np.testing.assert_allclose(seq.target_joints - seq.joints, FINGER_OFFSET_RAD, atol=1e-5)  # the scripted teacher's rule
+    np.testing.assert_allclose(
+        seq.target_joints - seq.joints, FINGER_OFFSET_RAD, atol=1e-5
+    )  # the scripted teacher's rule
     np.testing.assert_array_equal(seq.contact, ro.column(first, "region_force")[1:] > 0.5)
-    np.testing.assert_allclose(wrist_residual(seq.wrist_pose, seq.target_wrist)[:, :3], [[0, 0, -WRIST_DROP_M]] * len(seq.step), atol=1e-9)
+    np.testing.assert_allclose(
+        wrist_residual(seq.wrist_pose, seq.target_wrist)[:, :3], [[0, 0, -WRIST_DROP_M]] * len(seq.step), atol=1e-9
+    )
 
 
 def test_augmentation_shares_the_noise_and_is_seeded(student_lake: Path, references: dict) -> None:
@@ -144,7 +162,14 @@ def trained(dataset: pa.Table, tmp_path_factory: pytest.TempPathFactory):
     part = lambda s: windows_from_table(dataset.filter(pc.equal(dataset["split"], s)), TASKS, TINY.history)  # noqa: E731
     folder = tmp_path_factory.mktemp("student-ckpt")
     logged: dict[int, dict[str, float]] = {}
-    result = train(part("train"), part("val"), _clouds(), TINY, folder, on_log=lambda step, metrics: logged.setdefault(step, metrics))
+    result = train(
+        part("train"),
+        part("val"),
+        _clouds(),
+        TINY,
+        folder,
+        on_log=lambda step, metrics: logged.setdefault(step, metrics),
+    )
     return result, part, folder, logged
 
 
@@ -174,7 +199,14 @@ def test_a_training_stopped_midway_resumes_to_the_one_never_stopped(trained, tmp
     stopped = train(part("train"), part("val"), _clouds(), TINY, folder, should_stop=lambda: next(updates) >= 25)
     assert stopped.steps == 25 and torch.load(folder / CHECKPOINT, weights_only=False)["step"] == 25
     resumed_log: dict[int, dict[str, float]] = {}
-    resumed = train(part("train"), part("val"), _clouds(), TINY, folder, on_log=lambda step, metrics: resumed_log.setdefault(step, metrics))
+    resumed = train(
+        part("train"),
+        part("val"),
+        _clouds(),
+        TINY,
+        folder,
+        on_log=lambda step, metrics: resumed_log.setdefault(step, metrics),
+    )
     assert resumed.resumed_from == 25 and resumed.steps == TINY.steps
     assert resumed_log == {step: logged[step] for step in (40, 60)}
     assert resumed.curve == result.curve
@@ -189,7 +221,11 @@ def test_streaming_equals_batched_inference(trained, references: dict) -> None:
     batched = predict_recording(net, inputs, points, batch=37)
     for compiled in (True, False):  # the frozen TorchScript trace (the default) and the eager modules
         streamed = StreamingStudent(net, points, compiled=compiled).run(inputs)
-        for a, b in ((batched.joints, streamed.joints), (batched.wrist_residual, streamed.wrist_residual), (batched.contact_logits, streamed.contact_logits)):
+        for a, b in (
+            (batched.joints, streamed.joints),
+            (batched.wrist_residual, streamed.wrist_residual),
+            (batched.contact_logits, streamed.contact_logits),
+        ):
             np.testing.assert_allclose(a, b, atol=1e-5)
     # the served single-tensor form gives the newest step of the same window
     window = np.concatenate([np.repeat(inputs[:1], net.history - 5, axis=0), inputs[:5]])
@@ -229,16 +265,22 @@ def test_executing_the_teachers_own_commands_reproduces_its_rollout(student_lake
     wrist[seq.step] = wrist_residual(seq.wrist_pose, seq.target_wrist)
     perfect = StudentOutput(joints, wrist, np.zeros((T, 8)))
     env = BatchEnv(build_scene("pick", TEACHER.sim), TEACHER.sim, 1)
-    student_rows, contacts = execute(env, DemoTracking(stack_references([ref]), TEACHER, "touch2robot"), [perfect], TEACHER, "touch2robot")
+    student_rows, contacts = execute(
+        env, DemoTracking(stack_references([ref]), TEACHER, "touch2robot"), [perfect], TEACHER, "touch2robot"
+    )
     env.close()
     teacher = rows.filter(pc.equal(rows["rollout_id"], seq.source_rollout_id))
     assert student_rows.num_rows == teacher.num_rows and student_rows["origin"][0].as_py() == "student"
-    np.testing.assert_allclose(ro.column(student_rows, "joint_position"), ro.column(teacher, "joint_position"), atol=1e-6)
+    np.testing.assert_allclose(
+        ro.column(student_rows, "joint_position"), ro.column(teacher, "joint_position"), atol=1e-6
+    )
     assert set(contacts["source"].to_pylist()) == {"reconstructed"}
     assert student_rows["rollout_id"][0].as_py() == "student-touch2robot-pick-000"
 
 
-def test_reconstruction_runs_every_demonstration_and_scores_the_held_out_ones(trained, student_lake: Path, references: dict) -> None:
+def test_reconstruction_runs_every_demonstration_and_scores_the_held_out_ones(
+    trained, student_lake: Path, references: dict
+) -> None:
     """The full model also turns trained-on demonstrations into robot ones (rollouts for the
     policy stage); contacts, predictions and figures cover only the evaluated (held-out) ones."""
     import dataclasses
@@ -248,7 +290,9 @@ def test_reconstruction_runs_every_demonstration_and_scores_the_held_out_ones(tr
     ref = next(r for r in references.values() if r.task == "wipe")
     seen = dataclasses.replace(ref, recording_id="trained-on")
     teacher = _teacher_rows(student_lake, "wipe")
-    both = reconstruct_task(trained[0].net, "wipe", [ref, seen], TEACHER, "touch2robot", "full", teacher, evaluated=[ref.recording_id])
+    both = reconstruct_task(
+        trained[0].net, "wipe", [ref, seen], TEACHER, "touch2robot", "full", teacher, evaluated=[ref.recording_id]
+    )
     alone = reconstruct_task(trained[0].net, "wipe", [ref], TEACHER, "touch2robot", "full", teacher)
     assert set(both.rollouts["reference_id"].to_pylist()) == {ref.recording_id, "trained-on"}
     for table in (both.contacts, both.predictions):
@@ -279,7 +323,9 @@ def test_student_flow_end_to_end(student_lake: Path, tmp_path: Path) -> None:
     # validation here is drawer's one demonstration, a task the smoke student never trains on, so
     # its loss may rise (it did in CI); learning is shown on a seen-task split by
     # test_training_lowers_the_validation_loss
-    assert all(t["steps"] == 80 and np.isfinite([t["initial_val_loss"], t["final_val_loss"]]).all() for t in trained.values())
+    assert all(
+        t["steps"] == 80 and np.isfinite([t["initial_val_loss"], t["final_val_loss"]]).all() for t in trained.values()
+    )
     assert out["split"]["in_sample"] and {r["task"] for r in out["heldout"]} == set(TASKS)
 
     data = pa.concat_tables([pq.read_table(p) for p in lake_io.files(layout.lake, "student_dataset")])

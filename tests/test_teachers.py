@@ -26,7 +26,10 @@ from touch2robot.teachers.objective import NUM_ACTIONS, DemoTracking, References
 from touch2robot.teachers.reference import ReferenceError, load_reference
 from touch2robot.teachers.train import checkpoints, load_latest, make_teacher_env, runner_config, train
 
-SMALL = TeacherConfig(sim=SimConfig(n_envs=16), ppo=PPOConfig(num_steps_per_env=32, max_iterations=4, hidden_dims=(64, 64), save_interval=2))
+SMALL = TeacherConfig(
+    sim=SimConfig(n_envs=16),
+    ppo=PPOConfig(num_steps_per_env=32, max_iterations=4, hidden_dims=(64, 64), save_interval=2),
+)
 
 
 def _recordings(root: Path) -> dict[str, dict]:
@@ -131,7 +134,16 @@ def test_virtual_object_assistance_pulls_the_object_along_its_reference(refs: di
 
 
 def test_assistance_gain_decays_with_task_reward_until_off(refs: dict[str, References]) -> None:
-    config = SMALL.model_copy(update={"variants": {**SMALL.variants, "dexmachina": MethodConfig(assistance=AssistanceConfig(enabled=True, window_episodes=4, decay=0.5, min_gain=0.2))}})
+    config = SMALL.model_copy(
+        update={
+            "variants": {
+                **SMALL.variants,
+                "dexmachina": MethodConfig(
+                    assistance=AssistanceConfig(enabled=True, window_episodes=4, decay=0.5, min_gain=0.2)
+                ),
+            }
+        }
+    )
     env = _env("pick", 4)
     objective = DemoTracking(refs["pick"], config, "dexmachina")
     objective.reset(env, np.arange(4), np.random.default_rng(0))
@@ -167,7 +179,9 @@ def test_contrack_dual_variable_follows_the_task_constraint(refs: dict[str, Refe
 def test_rollouts_replay_exactly_from_their_first_rows(refs: dict[str, References], task: str) -> None:
     """The rollouts contract: reset to row 0, replay the recorded commands, get the recorded states."""
     env = _env(task, 2)
-    rows, contacts = ro.record(env, DemoTracking(refs[task], SMALL, "touch2robot"), ro.zero_residual, "dex-retargeting", "kinematic")
+    rows, contacts = ro.record(
+        env, DemoTracking(refs[task], SMALL, "touch2robot"), ro.zero_residual, "dex-retargeting", "kinematic"
+    )
     env.close()
     assert rows.schema.equals(SCHEMAS["rollouts"])
     assert contacts.num_rows == 8 * rows.num_rows
@@ -175,7 +189,11 @@ def test_rollouts_replay_exactly_from_their_first_rows(refs: dict[str, Reference
     replay = _env(task, 2)
     ro.reset_to_rows(replay, np.arange(2), first)
     ids = rows["rollout_id"].to_numpy(zero_copy_only=False)
-    targets, wrist, positions = ro.column(rows, "joint_target"), ro.column(rows, "wrist_pose"), ro.column(rows, "joint_position")
+    targets, wrist, positions = (
+        ro.column(rows, "joint_target"),
+        ro.column(rows, "wrist_pose"),
+        ro.column(rows, "joint_position"),
+    )
     per_copy = [np.flatnonzero(ids == rid) for rid in np.unique(ids)]
     for k in range(min(len(p) for p in per_copy)):
         idx = [p[k] for p in per_copy]

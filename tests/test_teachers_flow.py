@@ -29,26 +29,43 @@ def test_teachers_flow_writes_rollouts_contacts_and_mlflow_runs(demo_lake: Path,
     shutil.copytree(demo_lake, root)
     layout = DataLayout(root)
     rows = teachers(profile="smoke", data=str(root), tasks=["wipe"], methods=["touch2robot"])
-    assert {(r["task"], r["method"], r["origin"]) for r in rows} == {("wipe", "touch2robot", "teacher"), ("wipe", "dex-retargeting", "kinematic")}
-    counts = catalog.query(layout, "SELECT method, origin, count(DISTINCT rollout_id) AS n, bool_and(t_ref >= 0) AS clocked FROM rollouts GROUP BY ALL ORDER BY method").to_pylist()
+    assert {(r["task"], r["method"], r["origin"]) for r in rows} == {
+        ("wipe", "touch2robot", "teacher"),
+        ("wipe", "dex-retargeting", "kinematic"),
+    }
+    counts = catalog.query(
+        layout,
+        "SELECT method, origin, count(DISTINCT rollout_id) AS n, bool_and(t_ref >= 0) AS clocked FROM rollouts GROUP BY ALL ORDER BY method",
+    ).to_pylist()
     assert counts == [
         {"method": "dex-retargeting", "origin": "kinematic", "n": 1, "clocked": True},
         {"method": "touch2robot", "origin": "teacher", "n": 2, "clocked": True},  # smoke: rollouts_per_task 2
     ]
-    sim = catalog.query(layout, "SELECT method, count(*) AS n FROM contacts WHERE source = 'sim' GROUP BY ALL ORDER BY method").to_pylist()
+    sim = catalog.query(
+        layout, "SELECT method, count(*) AS n FROM contacts WHERE source = 'sim' GROUP BY ALL ORDER BY method"
+    ).to_pylist()
     assert [r["method"] for r in sim] == ["dex-retargeting", "touch2robot"]
 
     teacher = next(r for r in rows if r["origin"] == "teacher")
     uri = tracking.tracking_uri(layout)
     run = MlflowClient(uri).get_run(teacher["mlflow_run"])
-    assert {"reward/tactile", "reward/object_pos", "reward/imitation", "Loss/learning_rate", "rollouts/contact_f1"} <= set(run.data.metrics)
+    assert {
+        "reward/tactile",
+        "reward/object_pos",
+        "reward/imitation",
+        "Loss/learning_rate",
+        "rollouts/contact_f1",
+    } <= set(run.data.metrics)
     assert run.data.params["ppo.gamma"] == "0.96" and run.data.params["method.rewards.tactile"] == "1.0"
     assert any(a.path.endswith(".pt") for a in MlflowClient(uri).list_artifacts(run.info.run_id, "checkpoints"))
 
     from flows.evaluate import evaluate
 
     evaluate(profile="smoke", data=str(root))  # the sim contacts are scored like any other source
-    f1 = catalog.query(layout, "SELECT method, f1 FROM contact_metrics WHERE source = 'sim' AND task = 'wipe' AND region = '*' ORDER BY method").to_pylist()
+    f1 = catalog.query(
+        layout,
+        "SELECT method, f1 FROM contact_metrics WHERE source = 'sim' AND task = 'wipe' AND region = '*' ORDER BY method",
+    ).to_pylist()
     assert [r["method"] for r in f1] == ["dex-retargeting", "touch2robot"] and all(0 <= r["f1"] <= 1 for r in f1)
     assert abs(f1[1]["f1"] - teacher["contact_f1"]) <= 5e-4  # the flow's figure (3 decimals) is the evaluation's
 
@@ -56,7 +73,9 @@ def test_teachers_flow_writes_rollouts_contacts_and_mlflow_runs(demo_lake: Path,
     before = {p: p.stat().st_mtime_ns for p in checkpoints}
     again = teachers(profile="smoke", data=str(root), tasks=["wipe"], methods=["touch2robot"])
     assert again == rows
-    assert {p: p.stat().st_mtime_ns for p in sorted(layout.checkpoints.rglob("model_*.pt"))} == before  # nothing retrained
+    assert {
+        p: p.stat().st_mtime_ns for p in sorted(layout.checkpoints.rglob("model_*.pt"))
+    } == before  # nothing retrained
 
 
 PROFILE = """
@@ -75,7 +94,20 @@ def test_killed_training_resumes_from_its_last_checkpoint(demo_lake: Path, tmp_p
     profile = tmp_path / "kill-test.yaml"
     profile.write_text(PROFILE)
     layout = DataLayout(root)
-    command = [sys.executable, "-m", "touch2robot.cli", "teachers", "--profile", str(profile), "--data", str(root), "--task", "wipe", "--method", "touch2robot"]
+    command = [
+        sys.executable,
+        "-m",
+        "app.cli",
+        "teachers",
+        "--profile",
+        str(profile),
+        "--data",
+        str(root),
+        "--task",
+        "wipe",
+        "--method",
+        "touch2robot",
+    ]
     env = {**os.environ, "PREFECT_HOME": str(tmp_path / "prefect")}
     first = subprocess.Popen(command, cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.monotonic() + 300
@@ -103,5 +135,6 @@ def test_killed_training_resumes_from_its_last_checkpoint(demo_lake: Path, tmp_p
     steps = [m.step for m in history]
     assert steps.count(0) == 1  # not started over: iteration 0 ran once
     assert set(steps) == set(range(40))
-    assert catalog.query(layout, "SELECT count(DISTINCT rollout_id) AS n FROM rollouts WHERE origin = 'teacher'").to_pylist() == [{"n": 1}]
-
+    assert catalog.query(
+        layout, "SELECT count(DISTINCT rollout_id) AS n FROM rollouts WHERE origin = 'teacher'"
+    ).to_pylist() == [{"n": 1}]

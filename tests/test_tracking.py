@@ -29,8 +29,12 @@ def test_a_resumed_training_logs_each_step_once(tmp_path: Path) -> None:
     for step in range(50, 110, 10):
         resumed(step, {"loss": 0.5, "lr": 0.1, "grad_norm": 2.0})
     assert _steps(uri, run_id, "train/loss") == list(range(10, 110, 10))
-    assert [m.value for m in sorted(MlflowClient(uri).get_metric_history(run_id, "train/loss"), key=lambda m: m.step)][-4:] == [0.5] * 4
-    assert _steps(uri, run_id, "train/grad_norm") == list(range(50, 110, 10))  # a new metric starts where it is first logged
+    assert [m.value for m in sorted(MlflowClient(uri).get_metric_history(run_id, "train/loss"), key=lambda m: m.step)][
+        -4:
+    ] == [0.5] * 4
+    assert _steps(uri, run_id, "train/grad_norm") == list(
+        range(50, 110, 10)
+    )  # a new metric starts where it is first logged
     assert mlflow.active_run() is None
 
 

@@ -85,7 +85,9 @@ def refresh(layout: DataLayout) -> list[str]:
 def connect_read_only(layout: DataLayout) -> duckdb.DuckDBPyConnection:
     """A read-only connection that can read the lake and nothing else on disk."""
     if not layout.catalog.exists():
-        raise FileNotFoundError(f"no catalog at {layout.catalog}: run `touch2robot ingest` (or `touch2robot run`) first")
+        raise FileNotFoundError(
+            f"no catalog at {layout.catalog}: run `touch2robot ingest` (or `touch2robot run`) first"
+        )
     con = duckdb.connect(str(layout.catalog), read_only=True)
     if con.sql("SELECT current_setting('lock_configuration')").fetchall()[0][0]:
         # another connection of this process already sandboxed the shared database instance

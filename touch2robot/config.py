@@ -51,7 +51,9 @@ class Profile(BaseModel):
                 "makes no training repeat: use 'processes' (or 'dask' with threads_per_worker 1), or max_workers 1"
             )
         if t.kind == "dask" and t.dask_address is None and t.threads_per_worker != 1:
-            raise ValueError("training_runner.threads_per_worker must be 1: trainings sharing a worker process share torch's RNG")
+            raise ValueError(
+                "training_runner.threads_per_worker must be 1: trainings sharing a worker process share torch's RNG"
+            )
         return self
 
 
@@ -79,7 +81,9 @@ def load_profile(name_or_path: str | Path) -> Profile:
         res = resources.files("touch2robot.profiles") / f"{name_or_path}.yaml"
         text, origin = res.read_text(), f"built-in profile {name_or_path!r}"
     else:
-        raise ProfileError(f"unknown profile {name_or_path!r}: use one of {', '.join(BUILTIN_PROFILES)} or a YAML file path")
+        raise ProfileError(
+            f"unknown profile {name_or_path!r}: use one of {', '.join(BUILTIN_PROFILES)} or a YAML file path"
+        )
     try:
         data = yaml.safe_load(text) or {}
     except yaml.YAMLError as e:

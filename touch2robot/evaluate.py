@@ -61,11 +61,25 @@ REFERENCE_SOURCE = "human"
 
 # The contacts columns the evaluation reads (`value` is not needed and is the widest column).
 CONTACT_COLUMNS: tuple[str, ...] = (
-    "source", "method", "task", "subject", "sequence_id", "reference_id", "t", "t_ref", "region", "contact",
+    "source",
+    "method",
+    "task",
+    "subject",
+    "sequence_id",
+    "reference_id",
+    "t",
+    "t_ref",
+    "region",
+    "contact",
 )
 
 # Roll-ups written per (source, method): the cube over task x region, like the SQL macro.
-_SLICES: tuple[tuple[str, ...], ...] = (("method", "task", "region"), ("method", "task"), ("method", "region"), ("method",))
+_SLICES: tuple[tuple[str, ...], ...] = (
+    ("method", "task", "region"),
+    ("method", "task"),
+    ("method", "region"),
+    ("method",),
+)
 _ONSET_COUNTS: tuple[str, ...] = ("n_pairs", "n", "n_missing_reference", "n_missing_evaluated", "n_missing_both")
 
 
@@ -234,7 +248,9 @@ def onset_errors_table(
     for by in _SLICES:
         s = err.groupby(list(by), sort=True)[[*_ONSET_COUNTS, "error_sum"]].sum().reset_index()
         s["error_ms"] = np.where(s["n"] > 0, s["error_sum"] / s["n"].where(s["n"] > 0, 1), np.nan)
-        summaries.append(_fill_all(s.drop(columns="error_sum"), ("task", "region", "sequence_id", "subject", "reference_id")))
+        summaries.append(
+            _fill_all(s.drop(columns="error_sum"), ("task", "region", "sequence_id", "subject", "reference_id"))
+        )
     table = pd.concat([pairs, *summaries], ignore_index=True).assign(source=eval_source, reference_source=reference)
     return table[names]
 
@@ -349,11 +365,15 @@ def plot_timeline(reference: pd.DataFrame, evaluated: pd.DataFrame, title: str, 
     for k, region in enumerate(ROBOT_REGIONS):
         for frame, lo, color in ((reference, k + 0.5, "C0"), (evaluated, k + 0.1, "C1")):
             r = frame[frame["region"] == region].sort_values("t_ref")
-            ax.fill_between(r["t_ref"], lo, lo + 0.4 * r["contact"].astype(float), step="post", color=color, linewidth=0)
+            ax.fill_between(
+                r["t_ref"], lo, lo + 0.4 * r["contact"].astype(float), step="post", color=color, linewidth=0
+            )
     ax.set_yticks(np.arange(len(ROBOT_REGIONS)) + 0.5, ROBOT_REGIONS)
     ax.set_ylim(0, len(ROBOT_REGIONS))
     ax.set_xlabel("reference time (s)")
-    ax.legend(handles=[_patch("C0", "reference (upper)"), _patch("C1", "evaluated (lower)")], loc="upper right", fontsize=7)
+    ax.legend(
+        handles=[_patch("C0", "reference (upper)"), _patch("C1", "evaluated (lower)")], loc="upper right", fontsize=7
+    )
     ax.set_title(title, fontsize=9)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=80)
@@ -380,7 +400,13 @@ def plot_metrics_by_method(metrics: pd.DataFrame, onsets: pd.DataFrame, path: Pa
     )
     tasks = sorted(t for t in table["task"].unique() if t != ALL) + ([ALL] if (table["task"] == ALL).any() else [])
     groups = sorted({(s, me) for s, me in zip(table["source"], table["method"], strict=True)})
-    panels = (("precision", "precision"), ("recall", "recall"), ("f1", "F1"), ("fpr", "FPR"), ("onset_error_ms", "onset error E (ms)"))
+    panels = (
+        ("precision", "precision"),
+        ("recall", "recall"),
+        ("f1", "F1"),
+        ("fpr", "FPR"),
+        ("onset_error_ms", "onset error E (ms)"),
+    )
     fig = _figure(3.2 * len(panels), 3.4)
     axes = fig.subplots(1, len(panels))
     width = 0.8 / max(len(groups), 1)
@@ -406,7 +432,10 @@ def plot_ratings(ratings: pd.DataFrame, title: str, path: Path) -> Path:
     ax = fig.add_subplot()
     questions = [q for q in QUESTIONS if q in set(ratings["question"])]
     for c, condition in enumerate(CONDITIONS):
-        data = [ratings[(ratings["question"] == q) & (ratings["condition"] == condition)]["rating"].to_numpy(dtype=float) for q in questions]
+        data = [
+            ratings[(ratings["question"] == q) & (ratings["condition"] == condition)]["rating"].to_numpy(dtype=float)
+            for q in questions
+        ]
         positions = np.arange(len(questions)) * 3 + c
         box = ax.boxplot(data, positions=positions, widths=0.8, patch_artist=True)
         for patch in box["boxes"]:

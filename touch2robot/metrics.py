@@ -261,8 +261,7 @@ def contact_scores(
         names = tuple(ROBOT_REGIONS if regions is None else regions)
         if len(names) != n_regions or len(set(names)) != len(names):
             raise ValueError(
-                f"regions must name each of the {n_regions} entries of the last axis once; "
-                f"got {list(names)}"
+                f"regions must name each of the {n_regions} entries of the last axis once; got {list(names)}"
             )
     if not per_region:
         return _counts_flat(ref, ev)
@@ -285,9 +284,7 @@ def _check_times(name: str, t: object) -> np.ndarray:
     return a
 
 
-def align_to_reference(
-    ref_t: object, ref_contacts: object, eval_t_ref: object
-) -> tuple[np.ndarray, np.ndarray]:
+def align_to_reference(ref_t: object, ref_contacts: object, eval_t_ref: object) -> tuple[np.ndarray, np.ndarray]:
     """Pick, for every evaluated sample, the reference sample it is compared with.
 
     Alignment rule (backward ASOF join, identical to the SQL macros): the evaluated sample at
@@ -309,9 +306,7 @@ def align_to_reference(
     et = _check_times("eval_t_ref", eval_t_ref)
     rc = np.asarray(ref_contacts)
     if rc.ndim < 1 or rc.shape[0] != rt.size:
-        raise ValueError(
-            f"ref_contacts must have len(ref_t)={rt.size} rows; got shape {rc.shape}"
-        )
+        raise ValueError(f"ref_contacts must have len(ref_t)={rt.size} rows; got shape {rc.shape}")
     if rt.size > 1 and not np.all(np.diff(rt) > 0):
         raise ValueError("ref_t must be strictly increasing")
     # side="right" makes exact matches (ref_t == eval t_ref) count, like `>=` in ASOF JOIN.
@@ -342,9 +337,7 @@ def _reference_rows(contacts: pd.DataFrame, ref_source: str) -> pd.DataFrame:
     return ref
 
 
-def contact_counts_long(
-    contacts: pd.DataFrame, *, ref_source: str = "human", eval_source: str
-) -> pd.DataFrame:
+def contact_counts_long(contacts: pd.DataFrame, *, ref_source: str = "human", eval_source: str) -> pd.DataFrame:
     """TP/FP/FN/TN per (method, task, subject, region) straight from the long ``contacts`` table.
 
     Python twin of the SQL table macro ``contact_counts(ref_source, eval_source)``; both return
@@ -371,16 +364,10 @@ def contact_counts_long(
         ref_t = rg["t_ref"].to_numpy()[order]
         if ref_t.size > 1 and not np.all(np.diff(ref_t) > 0):
             raise ValueError(f"reference {key[0]!r} region {key[1]!r} has duplicate t_ref values")
-        aligned, kept = align_to_reference(
-            ref_t, rg["contact"].to_numpy(dtype=bool)[order], eg["t_ref"].to_numpy()
-        )
+        aligned, kept = align_to_reference(ref_t, rg["contact"].to_numpy(dtype=bool)[order], eg["t_ref"].to_numpy())
         part = eg.loc[kept, list(CONTACT_KEYS)]
         e = eg["contact"].to_numpy(dtype=bool)[kept]
-        parts.append(
-            part.assign(
-                tp=aligned & e, fp=~aligned & e, fn=aligned & ~e, tn=~aligned & ~e
-            )
-        )
+        parts.append(part.assign(tp=aligned & e, fp=~aligned & e, fn=aligned & ~e, tn=~aligned & ~e))
     if not parts:
         out = pd.DataFrame({k: pd.Series(dtype=object) for k in CONTACT_KEYS})
         return out.assign(**{c: pd.Series(dtype=np.int64) for c in COUNT_COLUMNS})
@@ -493,9 +480,7 @@ def map_to_reference_time(t: object, map_t: object, map_t_ref: object) -> np.nda
     mt = _check_times("time map t", map_t)
     mr = _check_times("time map t_ref", map_t_ref)
     if mt.size != mr.size or mt.size == 0:
-        raise ValueError(
-            f"time map needs equally long, non-empty t and t_ref; got {mt.size} and {mr.size}"
-        )
+        raise ValueError(f"time map needs equally long, non-empty t and t_ref; got {mt.size} and {mr.size}")
     if not np.all(np.diff(mt) > 0):
         raise ValueError("time map t (replay time) must be strictly increasing")
     if not np.all(np.diff(mr) >= 0):
@@ -537,9 +522,7 @@ def _summarise(pairs: pd.DataFrame) -> OnsetErrors:
     )
 
 
-def onset_error_ms(
-    trajectories: Iterable[OnsetTrajectory], regions: Sequence[str] = ROBOT_REGIONS
-) -> OnsetErrors:
+def onset_error_ms(trajectories: Iterable[OnsetTrajectory], regions: Sequence[str] = ROBOT_REGIONS) -> OnsetErrors:
     """Contact-onset timing error E (ms) over trajectory-region pairs.
 
     For each trajectory and region: the reference onset is the first reference contact sample;
@@ -560,10 +543,7 @@ def onset_error_ms(
         ev_c = _as_binary(f"{tr.trajectory}: eval_contacts", tr.eval_contacts)
         for name, c, t in (("ref_contacts", ref_c, ref_t), ("eval_contacts", ev_c, ev_t)):
             if c.shape != (t.size, len(regions)):
-                raise ValueError(
-                    f"{tr.trajectory}: {name} must have shape ({t.size}, {len(regions)}); "
-                    f"got {c.shape}"
-                )
+                raise ValueError(f"{tr.trajectory}: {name} must have shape ({t.size}, {len(regions)}); got {c.shape}")
         if (tr.time_map_t is None) != (tr.time_map_t_ref is None):
             raise ValueError(f"{tr.trajectory}: give both time_map_t and time_map_t_ref or neither")
         if tr.time_map_t is None:
@@ -581,9 +561,7 @@ def onset_error_ms(
             ev_on[has] = ev_on_replay[has]
         else:
             ev_on[has] = map_to_reference_time(ev_on_replay[has], tr.time_map_t, tr.time_map_t_ref)
-        rows.extend(
-            (tr.trajectory, region, ref_on[k], ev_on[k]) for k, region in enumerate(regions)
-        )
+        rows.extend((tr.trajectory, region, ref_on[k], ev_on[k]) for k, region in enumerate(regions))
     pairs = pd.DataFrame(rows, columns=["trajectory", "region", "t_ref_onset", "t_eval_onset"])
     return _summarise(pairs.astype({"t_ref_onset": np.float64, "t_eval_onset": np.float64}))
 
@@ -618,9 +596,7 @@ def onset_error_ms_long(
     if on_missing_time_map not in ("raise", "use_t_ref"):
         raise ValueError(f"on_missing_time_map must be 'raise' or 'use_t_ref'; got {on_missing_time_map!r}")
     ref = _reference_rows(contacts, ref_source)
-    ref_onsets = (
-        ref[ref["contact"].to_numpy(dtype=bool)].groupby(["reference_id", "region"])["t_ref"].min()
-    )
+    ref_onsets = ref[ref["contact"].to_numpy(dtype=bool)].groupby(["reference_id", "region"])["t_ref"].min()
     ref_regions = ref.groupby("reference_id")["region"].unique()
     maps = {k: g.sort_values("t") for k, g in time_map.groupby("recording_id", sort=False)}
     rows = []
@@ -664,9 +640,14 @@ def onset_error_ms_long(
     pairs = pd.DataFrame(
         rows,
         columns=[
-            "trajectory", "region", "t_ref_onset", "t_eval_onset",
-            "method", "task", "subject", "reference_id",
+            "trajectory",
+            "region",
+            "t_ref_onset",
+            "t_eval_onset",
+            "method",
+            "task",
+            "subject",
+            "reference_id",
         ],
     )
     return _summarise(pairs.astype({"t_ref_onset": np.float64, "t_eval_onset": np.float64}))
-

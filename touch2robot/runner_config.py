@@ -25,8 +25,12 @@ class RunnerConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     kind: Literal["threads", "processes", "dask"] = "threads"
-    max_workers: int | None = Field(None, ge=1, description="pool size of threads/processes; None: Prefect's default (the CPU count)")
-    dask_address: str | None = Field(None, description="address of an existing Dask scheduler (production); None: a LocalCluster")
+    max_workers: int | None = Field(
+        None, ge=1, description="pool size of threads/processes; None: Prefect's default (the CPU count)"
+    )
+    dask_address: str | None = Field(
+        None, description="address of an existing Dask scheduler (production); None: a LocalCluster"
+    )
     n_workers: int = Field(2, ge=1, description="LocalCluster worker processes (kind dask without dask_address)")
     threads_per_worker: int = Field(1, ge=1, description="threads per LocalCluster worker process")
 

@@ -155,8 +155,7 @@ def _validate(ratings: pd.DataFrame, questions: Sequence[str]) -> pd.DataFrame:
     if len(unpaired):
         question, participant = unpaired.index[0]
         raise ValueError(
-            f"participant {participant!r} lacks one condition for question {question!r}: "
-            "ratings must be paired"
+            f"participant {participant!r} lacks one condition for question {question!r}: ratings must be paired"
         )
     return df
 
@@ -166,9 +165,7 @@ def _iqr(x: np.ndarray) -> float:
     return float(q3 - q1)
 
 
-def user_study(
-    ratings: pd.DataFrame, questions: Sequence[str] = QUESTIONS
-) -> UserStudyResult:
+def user_study(ratings: pd.DataFrame, questions: Sequence[str] = QUESTIONS) -> UserStudyResult:
     """Paired two-sided Wilcoxon signed-rank test per question, Holm-corrected across questions.
 
     Args:
@@ -198,9 +195,7 @@ def user_study(
             # scipy returns NaN here too (with a warning); the test has no information.
             statistic, p = 0.0, float("nan")
         else:
-            res = stats.wilcoxon(
-                vf, t2r, zero_method=ZERO_METHOD, method=METHOD, correction=CORRECTION
-            )
+            res = stats.wilcoxon(vf, t2r, zero_method=ZERO_METHOD, method=METHOD, correction=CORRECTION)
             statistic, p = float(res.statistic), float(res.pvalue)
         raw.append((q, vf, t2r, int(np.count_nonzero(d == 0)), statistic, p))
     adjusted = holm([r[5] for r in raw])

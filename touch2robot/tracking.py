@@ -71,7 +71,9 @@ def _get_or_create(layout: DataLayout, name: str, stage: str, uri: str) -> str:
 
 
 @contextmanager
-def stage_run(layout: DataLayout, stage: str, run_name: str, tags: dict[str, str] | None = None, run_id: str | None = None) -> Iterator[mlflow.ActiveRun]:
+def stage_run(
+    layout: DataLayout, stage: str, run_name: str, tags: dict[str, str] | None = None, run_id: str | None = None
+) -> Iterator[mlflow.ActiveRun]:
     """An MLflow run in the stage's experiment; ``run_id`` continues an earlier run (a resumed
     training keeps one run and one set of curves)."""
     exp = experiment(layout, stage)
@@ -83,7 +85,9 @@ def stage_run(layout: DataLayout, stage: str, run_name: str, tags: dict[str, str
         yield run
 
 
-def resumable_run(layout: DataLayout, stage: str, folder: Path, run_name: str, tags: dict[str, str], params: dict) -> str:
+def resumable_run(
+    layout: DataLayout, stage: str, folder: Path, run_name: str, tags: dict[str, str], params: dict
+) -> str:
     """The run id of a training kept in ``folder``: the one recorded there (a resumed training
     continues its curves in the same run), else a new run with ``params``, recorded atomically."""
     marker = folder / "mlflow_run.json"

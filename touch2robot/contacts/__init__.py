@@ -60,7 +60,7 @@ def regional_responses(values: np.ndarray, config: ContactsConfig) -> tuple[np.n
     # A trimmed mean, not the median: counts are integers and a median of integers is
     # biased by up to half a count, which adds up over a region's taxels.
     corrected -= trim_mean(corrected, 0.25, axis=1)[:, None]
-    resp = np.stack([corrected[:, _TAXEL_REGION == r].sum(axis=1) for r in HUMAN_REGIONS], 1)
+    resp = np.stack([corrected[:, r == _TAXEL_REGION].sum(axis=1) for r in HUMAN_REGIONS], 1)
     return resp, baseline
 
 
@@ -81,7 +81,9 @@ def glove_thresholds(resp: np.ndarray, baseline: np.ndarray, config: ContactsCon
     return GloveThresholds(tip, palm, noise, baseline)
 
 
-def glove_contacts(t: np.ndarray, values: np.ndarray, config: ContactsConfig) -> tuple[np.ndarray, np.ndarray, GloveThresholds]:
+def glove_contacts(
+    t: np.ndarray, values: np.ndarray, config: ContactsConfig
+) -> tuple[np.ndarray, np.ndarray, GloveThresholds]:
     """Binary human contacts (T, 9) in HUMAN_REGIONS order, the responses, and the thresholds."""
     if not np.isfinite(values).all():
         raise ValueError("glove values contain NaN/inf")
@@ -117,8 +119,18 @@ def real_contacts(
 
 
 def long_rows(
-    *, source: str, method: str, task: str, subject: str, sequence_id: str, reference_id: str,
-    t: np.ndarray, t_ref: np.ndarray, regions: tuple[str, ...], contact: np.ndarray, value: np.ndarray,
+    *,
+    source: str,
+    method: str,
+    task: str,
+    subject: str,
+    sequence_id: str,
+    reference_id: str,
+    t: np.ndarray,
+    t_ref: np.ndarray,
+    regions: tuple[str, ...],
+    contact: np.ndarray,
+    value: np.ndarray,
 ) -> pa.Table:
     """Wide (time, region) arrays -> rows of the long ``contacts`` table."""  # fmt: skip
     n, k = contact.shape

@@ -79,8 +79,22 @@ def replay_contacts(
     )  # fmt: skip
     rows = pa.concat_tables(
         [
-            long_rows(**common, t=t_tt, t_ref=np.interp(t_tt, map_t, map_ref), regions=ROBOT_REGIONS[:4], contact=tips, value=tip_value),
-            long_rows(**common, t=t_fsr, t_ref=np.interp(t_fsr, map_t, map_ref), regions=ROBOT_REGIONS[4:], contact=palm, value=fsr_raw),
+            long_rows(
+                **common,
+                t=t_tt,
+                t_ref=np.interp(t_tt, map_t, map_ref),
+                regions=ROBOT_REGIONS[:4],
+                contact=tips,
+                value=tip_value,
+            ),
+            long_rows(
+                **common,
+                t=t_fsr,
+                t_ref=np.interp(t_fsr, map_t, map_ref),
+                regions=ROBOT_REGIONS[4:],
+                contact=palm,
+                value=fsr_raw,
+            ),
         ]
     )
     n = len(threshold)
@@ -92,7 +106,8 @@ def replay_contacts(
             "threshold": np.r_[threshold, np.full(4, config.fsr_threshold)],
             "baseline": np.r_[mean, np.zeros(4)],
             "noise": np.r_[std, np.zeros(4)],
-            "method": [f"calibration {calibration_id}: mean + {config.twintac_noise_k} std"] * n + ["FSR native units, > threshold"] * 4,
+            "method": [f"calibration {calibration_id}: mean + {config.twintac_noise_k} std"] * n
+            + ["FSR native units, > threshold"] * 4,
         }
     )
     return rows, thresholds

@@ -18,7 +18,16 @@ from touch2robot import lake as lake_io
 from touch2robot.ingest.reader import DecodedRecording, RecordingError, content_id, counts_json, read_recording
 from touch2robot.ingest.tables import stream_tables
 
-__all__ = ["IngestResult", "RecordingError", "ReplayLink", "ingest_file", "link_replays", "read_recording", "recording_rows", "superseded_ids"]
+__all__ = [
+    "IngestResult",
+    "RecordingError",
+    "ReplayLink",
+    "ingest_file",
+    "link_replays",
+    "read_recording",
+    "recording_rows",
+    "superseded_ids",
+]
 
 
 @dataclass(frozen=True)
@@ -75,7 +84,9 @@ def ingest_file(path: Path, lake: Path) -> IngestResult:
     for table, rows_table in stream_tables(rec).items():
         lake_io.write_rows(lake, table, rec.recording_id, rows_table)
         rows += rows_table.num_rows
-    lake_io.write_rows(lake, "recordings", rec.recording_id, _row(path, rec.recording_id, rec.size_bytes, "ingested", "", rec))
+    lake_io.write_rows(
+        lake, "recordings", rec.recording_id, _row(path, rec.recording_id, rec.size_bytes, "ingested", "", rec)
+    )
     return IngestResult(rec.recording_id, str(path), "ingested", "", rec.kind, rows)
 
 
@@ -119,7 +130,9 @@ def link_replays(rows: list[dict]) -> tuple[list[dict], list[ReplayLink], list[s
             continue
         calib = by_name.get(r["calibration_recording"])
         if calib is None or calib["kind"] != "robot_calibration":
-            problems.append(f"{r['file_name']}: calibration {r['calibration_recording']!r} is not ingested; no real contacts")
+            problems.append(
+                f"{r['file_name']}: calibration {r['calibration_recording']!r} is not ingested; no real contacts"
+            )
             continue
         links.append(ReplayLink(r, calib["recording_id"], by_name.get(r["reference_recording"])))
     return gloves, links, problems

@@ -121,9 +121,13 @@ def read_recording(path: Path) -> DecodedRecording:
 def _decode_topic(path: Path, topic: Topic, channel: Channel, schema: Schema | None, payloads: list[bytes]) -> Batch:
     where = f"topic {topic.name}"
     if schema is None or schema.name != topic.msg_type:
-        raise RecordingError(path, f"{where} has schema {schema.name if schema else None!r}, expected {topic.msg_type!r}")
+        raise RecordingError(
+            path, f"{where} has schema {schema.name if schema else None!r}, expected {topic.msg_type!r}"
+        )
     if channel.message_encoding != MESSAGE_ENCODING:
-        raise RecordingError(path, f"{where} has message encoding {channel.message_encoding!r}, expected {MESSAGE_ENCODING!r}")
+        raise RecordingError(
+            path, f"{where} has message encoding {channel.message_encoding!r}, expected {MESSAGE_ENCODING!r}"
+        )
     try:
         batch = decode_batch(topic.msg_type, payloads)
     except CdrError as e:
@@ -131,7 +135,10 @@ def _decode_topic(path: Path, topic: Topic, channel: Channel, schema: Schema | N
     steps = np.diff(batch.stamp_ns)
     if (steps <= 0).any():
         i = int(np.flatnonzero(steps <= 0)[0]) + 1
-        raise RecordingError(path, f"{where}: timestamps not strictly increasing at message {i} ({batch.stamp_ns[i]} ns after {batch.stamp_ns[i - 1]} ns)")
+        raise RecordingError(
+            path,
+            f"{where}: timestamps not strictly increasing at message {i} ({batch.stamp_ns[i]} ns after {batch.stamp_ns[i - 1]} ns)",
+        )
     if topic.joint_names is not None:
         batch = _order_joints(path, topic, batch)
     for name, values in batch.fields.items():
@@ -143,7 +150,9 @@ def _decode_topic(path: Path, topic: Topic, channel: Channel, schema: Schema | N
         bad = ~np.isfinite(values)
         if bad.any():
             i, j = (int(v[0]) for v in np.nonzero(bad))
-            raise RecordingError(path, f"{where}: non-finite value ({values[i, j]}) in field {name!r} at message {i}, index {j}")
+            raise RecordingError(
+                path, f"{where}: non-finite value ({values[i, j]}) in field {name!r} at message {i}, index {j}"
+            )
     return batch
 
 
@@ -164,7 +173,10 @@ def _order_joints(path: Path, topic: Topic, batch: Batch) -> Batch:
         return batch
     absent = [n for n in topic.joint_names if n not in names]
     if absent:
-        raise RecordingError(path, f"topic {topic.name}: joint names lack {', '.join(absent)} ({len(names)} joints, expected {len(topic.joint_names)})")
+        raise RecordingError(
+            path,
+            f"topic {topic.name}: joint names lack {', '.join(absent)} ({len(names)} joints, expected {len(topic.joint_names)})",
+        )
     order = [names.index(n) for n in topic.joint_names]
     fields = {k: (v[:, order] if v.shape[1] == len(names) else v) for k, v in batch.fields.items()}
     return Batch(batch.stamp_ns, fields, batch.frame_ids, topic.joint_names)

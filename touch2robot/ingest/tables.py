@@ -6,8 +6,8 @@ import numpy as np
 import pyarrow as pa
 
 from schemas.messages import TOPICS_BY_KIND
-from touch2robot.recording.cdr import Batch
 from touch2robot.ingest.reader import DecodedRecording
+from touch2robot.recording.cdr import Batch
 
 
 def _fixed_list(values: np.ndarray, dtype: pa.DataType) -> pa.FixedSizeListArray:
@@ -25,7 +25,15 @@ def _base(rec: DecodedRecording, batch: Batch) -> dict[str, pa.Array]:
 
 def _pose_columns(pose: np.ndarray) -> dict[str, np.ndarray]:
     # geometry_msgs/Pose order: x y z qx qy qz qw
-    return {"px": pose[:, 0], "py": pose[:, 1], "pz": pose[:, 2], "qw": pose[:, 6], "qx": pose[:, 3], "qy": pose[:, 4], "qz": pose[:, 5]}
+    return {
+        "px": pose[:, 0],
+        "py": pose[:, 1],
+        "pz": pose[:, 2],
+        "qw": pose[:, 6],
+        "qx": pose[:, 3],
+        "qy": pose[:, 4],
+        "qz": pose[:, 5],
+    }
 
 
 def stream_tables(rec: DecodedRecording) -> dict[str, pa.Table]:

@@ -46,8 +46,23 @@ def section(root: ET.Element, tag: str) -> ET.Element:
 def _add_defaults(root: ET.Element) -> None:
     default = section(root, "default")
     leap = sub(default, "default", **{"class": "leap"})
-    sub(leap, "joint", axis=hd.JOINT_AXIS, damping=hd.JOINT_DAMPING, armature=hd.ARMATURE, frictionloss=hd.FRICTIONLOSS, limited="true")
-    sub(leap, "position", kp=hd.KP, forcerange=(-hd.TORQUE_LIMIT, hd.TORQUE_LIMIT), forcelimited="true", ctrllimited="true")
+    sub(
+        leap,
+        "joint",
+        axis=hd.JOINT_AXIS,
+        damping=hd.JOINT_DAMPING,
+        armature=hd.ARMATURE,
+        frictionloss=hd.FRICTIONLOSS,
+        limited="true",
+    )
+    sub(
+        leap,
+        "position",
+        kp=hd.KP,
+        forcerange=(-hd.TORQUE_LIMIT, hd.TORQUE_LIMIT),
+        forcelimited="true",
+        ctrllimited="true",
+    )
     sub(leap, "geom", rgba=HAND_RGBA, friction=(HAND_FRICTION, 0.05, 0.0002), condim="3", density="0", group="0")
     pad = sub(leap, "default", **{"class": "leap_pad"})
     sub(pad, "geom", rgba=PAD_RGBA, friction=(PAD_FRICTION, 0.05, 0.0002))
@@ -57,7 +72,13 @@ def _add_body(parent: ET.Element, lk: hd.Link, children: dict[str, list[hd.Link]
     attrs: dict[str, object] = {"name": lk.name, "pos": lk.pos, "quat": lk.quat, "childclass": "leap"}
     if lk.name == "palm":
         # the arm carries the palm: compensate its weight so that the soft weld does not sag
-        attrs = {"name": "palm", "pos": hd.PALM_IN_WRIST_POS, "quat": hd.PALM_IN_WRIST_QUAT, "childclass": "leap", "gravcomp": "1"}
+        attrs = {
+            "name": "palm",
+            "pos": hd.PALM_IN_WRIST_POS,
+            "quat": hd.PALM_IN_WRIST_QUAT,
+            "childclass": "leap",
+            "gravcomp": "1",
+        }
     body = sub(parent, "body", **attrs)
     sub(body, "inertial", pos=lk.com, mass=lk.mass, diaginertia=lk.diaginertia)
     if lk.joint is not None:
@@ -72,9 +93,29 @@ def _add_body(parent: ET.Element, lk: hd.Link, children: dict[str, list[hd.Link]
         box = region.box
         if box.body == lk.name:
             rgba = TIP_RGBA if region.name.startswith("T") else PAD_RGBA
-            sub(body, "geom", name=box.name, type="box", size=box.half, pos=box.pos, quat=box.quat, rgba=rgba, **{"class": "leap_pad"})
+            sub(
+                body,
+                "geom",
+                name=box.name,
+                type="box",
+                size=box.half,
+                pos=box.pos,
+                quat=box.quat,
+                rgba=rgba,
+                **{"class": "leap_pad"},
+            )
             half = np.asarray(box.half) + np.asarray(region.margin)
-            sub(body, "site", name=f"{region.name}_zone", type="box", size=half, pos=box.pos, quat=box.quat, rgba=(0, 0, 0, 0), group="4")
+            sub(
+                body,
+                "site",
+                name=f"{region.name}_zone",
+                type="box",
+                size=half,
+                pos=box.pos,
+                quat=box.quat,
+                rgba=(0, 0, 0, 0),
+                group="4",
+            )
     for site, (body_name, offset) in hd.TIP_SITES.items():
         if body_name == lk.name:
             sub(body, "site", name=site, pos=offset, size=0.004, rgba=(1, 0.2, 0.2, 1), group="4")
@@ -96,7 +137,15 @@ def add_hand(root: ET.Element, wrist_pos: np.ndarray, wrist_quat: np.ndarray) ->
     target = sub(world, "body", name=WRIST_TARGET, pos=wrist_pos, quat=wrist_quat, mocap="true")
     sub(target, "site", name="wrist_target_site", size=0.005, rgba=(0.2, 1, 0.2, 0.5), group="4")
 
-    sub(section(root, "equality"), "weld", name="wrist_weld", body1=WRIST_BODY, body2=WRIST_TARGET, relpose=(0, 0, 0, 1, 0, 0, 0), solref=WELD_SOLREF)
+    sub(
+        section(root, "equality"),
+        "weld",
+        name="wrist_weld",
+        body1=WRIST_BODY,
+        body2=WRIST_TARGET,
+        relpose=(0, 0, 0, 1, 0, 0, 0),
+        solref=WELD_SOLREF,
+    )
     contact = section(root, "contact")
     for a, b in hd.EXCLUDES:
         sub(contact, "exclude", body1=a, body2=b)
@@ -125,11 +174,23 @@ def mjcf_root(model_name: str, timestep: float = 0.01) -> ET.Element:
     root = ET.Element("mujoco", model=model_name)
     sub(root, "compiler", angle="radian", autolimits="true")
     # implicitfast: stable with the servos' damping at 10 ms; Newton converges in a few iterations
-    sub(root, "option", timestep=timestep, integrator="implicitfast", cone="pyramidal", iterations="10", ls_iterations="8")
+    sub(
+        root,
+        "option",
+        timestep=timestep,
+        integrator="implicitfast",
+        cone="pyramidal",
+        iterations="10",
+        ls_iterations="8",
+    )
     return root
 
 
-def hand_mjcf(wrist_pos: tuple[float, float, float] = (0.0, 0.0, 0.3), wrist_quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0), timestep: float = 0.01) -> str:
+def hand_mjcf(
+    wrist_pos: tuple[float, float, float] = (0.0, 0.0, 0.3),
+    wrist_quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0),
+    timestep: float = 0.01,
+) -> str:
     """A stand-alone MJCF document with only the hand (for tests and inspection)."""
     root = mjcf_root("leap_right_hand", timestep)
     add_hand(root, np.asarray(wrist_pos), np.asarray(wrist_quat))

@@ -56,7 +56,14 @@ def hand_urdf() -> str:
         sub(joint, "parent", link=lk.parent)
         sub(joint, "child", link=lk.name)
         sub(joint, "axis", xyz=hd.JOINT_AXIS)
-        sub(joint, "limit", lower=lk.joint.lower, upper=lk.joint.upper, effort=hd.TORQUE_LIMIT, velocity=hd.VELOCITY_LIMIT)
+        sub(
+            joint,
+            "limit",
+            lower=lk.joint.lower,
+            upper=lk.joint.upper,
+            effort=hd.TORQUE_LIMIT,
+            velocity=hd.VELOCITY_LIMIT,
+        )
     for site, (body, offset) in hd.TIP_SITES.items():
         sub(robot, "link", name=site)
         _fixed(robot, f"{site}_joint", body, site, offset, "0 0 0")

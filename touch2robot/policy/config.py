@@ -20,9 +20,12 @@ class PolicyConfig(BaseModel):
 
     # --- datasets
     tasks: tuple[str, ...] | None = Field(None, description="tasks to learn; None = every task with rollouts")
-    methods: tuple[str, ...] | None = Field(None, description="data-collection methods to compare; None = every method with rollouts")
+    methods: tuple[str, ...] | None = Field(
+        None, description="data-collection methods to compare; None = every method with rollouts"
+    )
     origins: tuple[str, ...] = Field(
-        ("student", "teacher", "kinematic"), min_length=1,
+        ("student", "teacher", "kinematic"),
+        min_length=1,
         description="rollout origins a method's dataset may come from, most preferred first "
         "(e.g. [teacher, kinematic] compares every method on its teacher's rollouts)",
     )
@@ -35,7 +38,9 @@ class PolicyConfig(BaseModel):
     image_size: int = Field(224, ge=8, description="square RGB image side (px) of both camera views")
     cameras: tuple[str, ...] = Field(("cam_left", "cam_right"), min_length=1, description="scene cameras recorded")
     max_rollouts: int | None = Field(None, ge=1, description="rollouts per task x method put in a dataset; None = all")
-    replay_batch: int = Field(16, ge=1, description="rollouts replayed (and rendered) together as copies of one BatchEnv")
+    replay_batch: int = Field(
+        16, ge=1, description="rollouts replayed (and rendered) together as copies of one BatchEnv"
+    )
     # --- Diffusion Policy (Table IX); None = LeRobot's default
     n_obs_steps: int = Field(5, ge=1, description="observation steps the policy conditions on")
     horizon: int = Field(24, ge=1, description="action steps predicted per inference")
@@ -64,7 +69,9 @@ class PolicyConfig(BaseModel):
     def _consistent_horizon(self) -> PolicyConfig:
         # LeRobot executes actions from the current observation on: n_obs - 1 + n_action <= horizon
         if self.n_action_steps > self.horizon - self.n_obs_steps + 1:
-            raise ValueError(f"n_action_steps={self.n_action_steps} exceeds horizon - n_obs_steps + 1 = {self.horizon - self.n_obs_steps + 1}")
+            raise ValueError(
+                f"n_action_steps={self.n_action_steps} exceeds horizon - n_obs_steps + 1 = {self.horizon - self.n_obs_steps + 1}"
+            )
         levels = len(self.down_dims) if self.down_dims is not None else 3
         if self.horizon % 2**levels:
             raise ValueError(f"horizon={self.horizon} must be a multiple of 2^len(down_dims) = {2**levels}")

@@ -20,9 +20,6 @@ recorded states is reported (physics is deterministic per copy, so it stays smal
 
 from __future__ import annotations
 
-# the GL backend is chosen when this is imported, before mujoco: keep it first
-from touch2robot.sim import render as _render  # noqa: F401, I001
-
 import os
 import shutil
 import time
@@ -39,6 +36,9 @@ from schemas.tables import ROBOT_REGIONS, ROLLOUT_ORIGINS, TASKS
 from touch2robot import lake as lake_io
 from touch2robot.leap import description as hd
 from touch2robot.policy.config import VIDEO_BACKEND, PolicyConfig
+
+# the GL backend is chosen when this is imported, before mujoco: keep it first
+from touch2robot.sim import render as _render  # noqa: F401
 from touch2robot.sim.config import SimConfig
 from touch2robot.sim.env import BatchEnv
 from touch2robot.sim.scene import Scene
@@ -107,7 +107,9 @@ def sources(lake: Path, preference: tuple[str, ...] = ORIGIN_PREFERENCE) -> list
         key, _, method = path.parent.name.partition("=")
         origin, _, task = path.stem.partition("-")
         if key != "method" or origin not in ORIGIN_PREFERENCE or task not in TASKS:
-            raise RolloutError(f"{path}: expected lake/rollouts/method=<m>/<origin>-<task>.parquet with origin in {ORIGIN_PREFERENCE}, task in {TASKS}")
+            raise RolloutError(
+                f"{path}: expected lake/rollouts/method=<m>/<origin>-<task>.parquet with origin in {ORIGIN_PREFERENCE}, task in {TASKS}"
+            )
         if origin not in preference:
             continue
         cand = Source(task, method, origin, path)
@@ -119,7 +121,11 @@ def sources(lake: Path, preference: tuple[str, ...] = ORIGIN_PREFERENCE) -> list
 
 def _matrix(table: pa.Table, column: str, width: int, path: Path) -> np.ndarray:
     values = table.column(column).combine_chunks()
-    flat = values.flatten().to_numpy(zero_copy_only=False) if pa.types.is_fixed_size_list(values.type) or pa.types.is_list(values.type) else None
+    flat = (
+        values.flatten().to_numpy(zero_copy_only=False)
+        if pa.types.is_fixed_size_list(values.type) or pa.types.is_list(values.type)
+        else None
+    )
     if flat is None or flat.size != width * len(table):
         raise RolloutError(f"{path}: column {column!r} must hold {width} values per row")
     return flat.reshape(len(table), width).astype(np.float64)
@@ -140,11 +146,17 @@ def common_demonstrations(paths: list[Path]) -> list[str]:
     return sorted(set.intersection(*sets)) if sets else []
 
 
-def chosen_sources(lake: Path, cfg: PolicyConfig, tasks: list[str] | None = None, methods: list[str] | None = None) -> list[tuple[Source, list[str] | None]]:
+def chosen_sources(
+    lake: Path, cfg: PolicyConfig, tasks: list[str] | None = None, methods: list[str] | None = None
+) -> list[tuple[Source, list[str] | None]]:
     """Every task x method's rollouts file (most preferred of ``cfg.origins``, narrowed to ``tasks``
     / ``methods``) with, under ``cfg.same_demonstrations``, the demonstrations every chosen method of
     its task follows (None = every rollout; [] = none in common, so nothing to compare)."""
-    chosen = [s for s in sources(lake, tuple(cfg.origins)) if (not tasks or s.task in tasks) and (not methods or s.method in methods)]
+    chosen = [
+        s
+        for s in sources(lake, tuple(cfg.origins))
+        if (not tasks or s.task in tasks) and (not methods or s.method in methods)
+    ]
     shared: dict[str, list[str]] = {}
     if cfg.same_demonstrations:
         for task_name in {s.task for s in chosen}:
@@ -158,7 +170,18 @@ def read_rollouts(path: Path, limit: int | None = None, references: list[str] | 
     those demonstrations, in that order (a deterministic teacher's repeats of a demonstration
     are the same trajectory). Then the first ``limit``."""
     table = pq.read_table(path)
-    needed = ("rollout_id", "reference_id", "step", "joint_position", "joint_target", "wrist_state", "wrist_pose", "object_pose", "drawer_opening", "success")
+    needed = (
+        "rollout_id",
+        "reference_id",
+        "step",
+        "joint_position",
+        "joint_target",
+        "wrist_state",
+        "wrist_pose",
+        "object_pose",
+        "drawer_opening",
+        "success",
+    )
     missing = [c for c in needed if c not in table.column_names]
     if missing:
         raise RolloutError(f"{path}: missing columns {missing}")
@@ -182,7 +205,9 @@ def read_rollouts(path: Path, limit: int | None = None, references: list[str] | 
         part = table.slice(a, b - a)
         steps = part.column("step").to_numpy()
         if not np.array_equal(steps, np.arange(len(steps))):
-            raise RolloutError(f"{path}: rollout {name!r} has steps {steps[:5]}... (expected 0, 1, 2, ... from its reset)")
+            raise RolloutError(
+                f"{path}: rollout {name!r} has steps {steps[:5]}... (expected 0, 1, 2, ... from its reset)"
+            )
         out.append(
             Rollout(
                 rollout_id=str(name),
@@ -264,7 +289,11 @@ def features(cfg: PolicyConfig) -> dict:
     return {
         **{f"observation.images.{cam}": image for cam in cfg.cameras},
         "observation.state": {"dtype": "float32", "shape": (len(STATE_NAMES),), "names": list(STATE_NAMES)},
-        "observation.environment_state": {"dtype": "float32", "shape": (len(ROBOT_REGIONS),), "names": [f"force_{r}" for r in ROBOT_REGIONS]},
+        "observation.environment_state": {
+            "dtype": "float32",
+            "shape": (len(ROBOT_REGIONS),),
+            "names": [f"force_{r}" for r in ROBOT_REGIONS],
+        },
         "action": {"dtype": "float32", "shape": (len(ACTION_NAMES),), "names": list(ACTION_NAMES)},
     }
 
@@ -302,7 +331,9 @@ def build_dataset(
     errors: list[np.ndarray] = []
     renderer = CameraRenderer(scene, cfg.cameras, cfg.image_size)
     try:
-        ds = LeRobotDataset.create(repo_id, FPS, features(cfg), root=tmp, robot_type=ROBOT_TYPE, use_videos=False, video_backend=VIDEO_BACKEND)
+        ds = LeRobotDataset.create(
+            repo_id, FPS, features(cfg), root=tmp, robot_type=ROBOT_TYPE, use_videos=False, video_backend=VIDEO_BACKEND
+        )
         frames = 0
         for first in range(0, len(rollouts), cfg.replay_batch):
             batch = rollouts[first : first + cfg.replay_batch]
@@ -334,7 +365,9 @@ def build_dataset(
     )
 
 
-def _replay(batch: list[Rollout], scene: Scene, sim: SimConfig, renderer: CameraRenderer, errors: list[np.ndarray]) -> list[dict[str, np.ndarray]]:
+def _replay(
+    batch: list[Rollout], scene: Scene, sim: SimConfig, renderer: CameraRenderer, errors: list[np.ndarray]
+) -> list[dict[str, np.ndarray]]:
     """Replay rollouts together; per rollout the frame arrays of its episode. Copies whose
     rollout has ended keep stepping on their last command (cheaper than a ragged batch) and
     are no longer recorded. Appends each step's worst joint error (replayed vs recorded)."""
@@ -343,7 +376,9 @@ def _replay(batch: list[Rollout], scene: Scene, sim: SimConfig, renderer: Camera
         reset_to_first_rows(env, batch)
         lengths = np.array([len(r) for r in batch])
         cams = [f"observation.images.{c}" for c in renderer.cameras]
-        episodes = [{k: [] for k in (*cams, "observation.state", "observation.environment_state", "action")} for _ in batch]
+        episodes = [
+            {k: [] for k in (*cams, "observation.state", "observation.environment_state", "action")} for _ in batch
+        ]
         for t in range(lengths.max()):
             live = np.flatnonzero(lengths > t)
             recorded = np.stack([batch[i].joint_position[t] for i in live])

@@ -14,9 +14,6 @@ jitter), and the policy's open-loop fit to its dataset against holding still (``
 
 from __future__ import annotations
 
-# the GL backend is chosen when this is imported, before mujoco: keep it first
-from touch2robot.sim import render as _render  # noqa: F401, I001
-
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +21,17 @@ from pathlib import Path
 import numpy as np
 
 from touch2robot.policy.config import VIDEO_BACKEND, PolicyConfig
-from touch2robot.policy.dataset import FPS, CameraRenderer, Rollout, observation_state, recorded_commands, reset_to_first_rows
+from touch2robot.policy.dataset import (
+    FPS,
+    CameraRenderer,
+    Rollout,
+    observation_state,
+    recorded_commands,
+    reset_to_first_rows,
+)
+
+# the GL backend is chosen when this is imported, before mujoco: keep it first
+from touch2robot.sim import render as _render  # noqa: F401
 from touch2robot.sim.config import SimConfig
 from touch2robot.sim.env import BatchEnv
 from touch2robot.sim.rsl_env import episode_steps
@@ -56,7 +63,9 @@ class EpisodeStarts:
         return [r.rollout_id for r in self.rollouts]
 
 
-def episode_starts(scene: Scene, rollouts: list[Rollout], episodes: int, seed: int, object_noise_m: float) -> EpisodeStarts:
+def episode_starts(
+    scene: Scene, rollouts: list[Rollout], episodes: int, seed: int, object_noise_m: float
+) -> EpisodeStarts:
     """``episodes`` starts drawn (seeded, with replacement) from the rollouts' reset rows, the
     object's start x, y jittered by N(0, object_noise_m^2) (not the drawer: it sits in its slide)."""
     rng = np.random.default_rng(seed)
@@ -94,7 +103,9 @@ def load_policy(policy_dir: Path, device: str | None = None):
     policy = DiffusionPolicy.from_pretrained(str(policy_dir), **({"device": device} if device else {}))
     policy.eval()
     overrides = {"device_processor": {"device": policy.config.device}}
-    pre, post = make_pre_post_processors(policy.config, pretrained_path=str(policy_dir), preprocessor_overrides=overrides)
+    pre, post = make_pre_post_processors(
+        policy.config, pretrained_path=str(policy_dir), preprocessor_overrides=overrides
+    )
     return policy, pre, post
 
 
@@ -122,7 +133,9 @@ def rollout_policy(policy, preprocessor, postprocessor, scene: Scene, sim: SimCo
 def _rollout_policy(policy, preprocessor, postprocessor, scene: Scene, sim: SimConfig, starts: EpisodeStarts, cfg: PolicyConfig,
                     video_episodes: int, steps: int | None) -> EvalResult:  # fmt: skip
     n_obs, n_act = policy.config.n_obs_steps, policy.config.n_action_steps
-    renderer = CameraRenderer(scene, tuple(k.removeprefix("observation.images.") for k in policy.config.image_features), cfg.image_size)
+    renderer = CameraRenderer(
+        scene, tuple(k.removeprefix("observation.images.") for k in policy.config.image_features), cfg.image_size
+    )
     successes, progress, videos = [], [], []
     replans = 0
     try:
@@ -160,7 +173,9 @@ def _rollout_policy(policy, preprocessor, postprocessor, scene: Scene, sim: SimC
     return EvalResult(np.concatenate(successes), np.concatenate(progress), horizon, replans, videos)
 
 
-def replay_demonstrations(scene: Scene, sim: SimConfig, starts: EpisodeStarts, cfg: PolicyConfig, steps: int | None = None) -> EvalResult:
+def replay_demonstrations(
+    scene: Scene, sim: SimConfig, starts: EpisodeStarts, cfg: PolicyConfig, steps: int | None = None
+) -> EvalResult:
     """The ceiling of a policy that reproduces its demonstrations exactly: each start's rollout
     commands (the dataset's actions) executed open loop from that start, object jitter included,
     for the same episode length (a rollout that has ended holds its last command)."""
@@ -190,7 +205,9 @@ def _predict(policy, preprocessor, postprocessor, history: list[dict[str, np.nda
     for key in history[0]:
         stacked = torch.from_numpy(np.stack([h[key] for h in history], axis=1))  # (N, n_obs, ...)
         if key.startswith("observation.images."):
-            stacked = stacked.permute(0, 1, 4, 2, 3).float() / 255.0  # (N, n_obs, 3, H, W) in [0, 1], as the dataset gives
+            stacked = (
+                stacked.permute(0, 1, 4, 2, 3).float() / 255.0
+            )  # (N, n_obs, 3, H, W) in [0, 1], as the dataset gives
         batch[key] = stacked
     return _predict_batch(policy, preprocessor, postprocessor, batch)
 
@@ -221,7 +238,16 @@ class ActionFit:
     hold_wrist_err_mm: float
 
 
-def action_fit(policy, preprocessor, postprocessor, dataset_root: Path, repo_id: str, frames: int = 64, seed: int = 0, batch_size: int = 16) -> ActionFit:
+def action_fit(
+    policy,
+    preprocessor,
+    postprocessor,
+    dataset_root: Path,
+    repo_id: str,
+    frames: int = 64,
+    seed: int = 0,
+    batch_size: int = 16,
+) -> ActionFit:
     """``ActionFit`` of ``policy`` on ``frames`` frames of a LeRobot dataset (drawn without
     replacement; frames and diffusion noise seeded by ``seed``); action steps past an episode's end
     (LeRobot's padding) are left out."""
@@ -232,13 +258,18 @@ def action_fit(policy, preprocessor, postprocessor, dataset_root: Path, repo_id:
         return _action_fit(policy, preprocessor, postprocessor, dataset_root, repo_id, frames, seed, batch_size)
 
 
-def _action_fit(policy, preprocessor, postprocessor, dataset_root: Path, repo_id: str, frames: int, seed: int, batch_size: int) -> ActionFit:
+def _action_fit(
+    policy, preprocessor, postprocessor, dataset_root: Path, repo_id: str, frames: int, seed: int, batch_size: int
+) -> ActionFit:
     import torch
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     c = policy.config
     keys = (*c.image_features, "observation.state", *(["observation.environment_state"] if c.env_state_feature else []))
-    windows = {**{k: [i / FPS for i in c.observation_delta_indices] for k in keys}, "action": [i / FPS for i in c.action_delta_indices]}
+    windows = {
+        **{k: [i / FPS for i in c.observation_delta_indices] for k in keys},
+        "action": [i / FPS for i in c.action_delta_indices],
+    }
     dataset = LeRobotDataset(repo_id, root=dataset_root, delta_timestamps=windows, video_backend=VIDEO_BACKEND)
     rng = np.random.default_rng(seed)
     chosen = np.sort(rng.choice(len(dataset), min(frames, len(dataset)), replace=False))
@@ -292,7 +323,9 @@ def write_video(frames: np.ndarray, path: Path, fps: int = 20) -> Path:
         stream.width, stream.height = w - w % 2, h - h % 2
         stream.pix_fmt = "yuv420p"
         for frame in frames:
-            packet = stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(frame[: stream.height, : stream.width]), format="rgb24"))
+            packet = stream.encode(
+                av.VideoFrame.from_ndarray(np.ascontiguousarray(frame[: stream.height, : stream.width]), format="rgb24")
+            )
             container.mux(packet)
         container.mux(stream.encode())
     return path

@@ -25,7 +25,9 @@ class ColumnViewReader(DatasetReader):
         for key, q_idx in query_indices.items():
             if key in self._meta.video_keys:
                 continue
-            rows = q_idx if self._absolute_to_relative_idx is None else [self._absolute_to_relative_idx[i] for i in q_idx]
+            rows = (
+                q_idx if self._absolute_to_relative_idx is None else [self._absolute_to_relative_idx[i] for i in q_idx]
+            )
             if key not in views:
                 views[key] = self.hf_dataset.select_columns(key)
             result[key] = torch.stack(views[key][rows][key])

@@ -83,7 +83,9 @@ def pipeline_config(dataset_root: Path, repo_id: str, cfg: PolicyConfig, output_
     return pipeline
 
 
-def lerobot_train_args(dataset_root: Path, repo_id: str, cfg: PolicyConfig, output_dir: Path, steps: int | None = None, save: bool = True) -> list[str]:
+def lerobot_train_args(
+    dataset_root: Path, repo_id: str, cfg: PolicyConfig, output_dir: Path, steps: int | None = None, save: bool = True
+) -> list[str]:
     """Command-line arguments of ``lerobot-train`` for the same run as ``train``."""
     kw = diffusion_kwargs(cfg)
     args = [
@@ -168,7 +170,12 @@ def train(
     reports the training's first and last loss."""
     import torch
     from accelerate import Accelerator
-    from lerobot.common.train_utils import get_step_checkpoint_dir, load_training_state, save_checkpoint, update_last_checkpoint
+    from lerobot.common.train_utils import (
+        get_step_checkpoint_dir,
+        load_training_state,
+        save_checkpoint,
+        update_last_checkpoint,
+    )
     from lerobot.datasets import EpisodeAwareSampler, compute_sampler_state
     from lerobot.datasets.factory import make_dataset
     from lerobot.optim.factory import make_optimizer_and_scheduler
@@ -235,8 +242,17 @@ def train(
     if step:  # the prepared loader sets the sampler's epoch to its own count of epochs, from 0
         loader.set_epoch(position["epoch"])  # (huggingface/lerobot#4692)
     # update_policy also records the peak GPU memory (gpu_mem_gb) wherever CUDA is available
-    meters = {name: AverageMeter(name) for name in ("loss", "grad_norm", "lr", "update_s", "dataloading_s", "gpu_mem_gb")}
-    tracker = MetricsTracker(pipeline.batch_size, dataset.num_frames, dataset.num_episodes, meters, initial_step=step, accelerator=accelerator)
+    meters = {
+        name: AverageMeter(name) for name in ("loss", "grad_norm", "lr", "update_s", "dataloading_s", "gpu_mem_gb")
+    }
+    tracker = MetricsTracker(
+        pipeline.batch_size,
+        dataset.num_frames,
+        dataset.num_episodes,
+        meters,
+        initial_step=step,
+        accelerator=accelerator,
+    )
     batches = cycle(loader)
     windows = _loss_log(output_dir, step)
     window_start = started = time.perf_counter()
@@ -247,10 +263,20 @@ def train(
             set_rng_state(checkpoint_rng)
             checkpoint_rng = None
         tracker.dataloading_s = time.perf_counter() - t0
-        tracker, _ = update_policy(tracker, policy, batch, optimizer, pipeline.optimizer.grad_clip_norm, accelerator=accelerator, lr_scheduler=scheduler)
+        tracker, _ = update_policy(
+            tracker,
+            policy,
+            batch,
+            optimizer,
+            pipeline.optimizer.grad_clip_norm,
+            accelerator=accelerator,
+            lr_scheduler=scheduler,
+        )
         step += 1
         tracker.step()
-        ending = (max_seconds is not None and time.perf_counter() - started >= max_seconds) or (should_stop is not None and should_stop())
+        ending = (max_seconds is not None and time.perf_counter() - started >= max_seconds) or (
+            should_stop is not None and should_stop()
+        )
         if step % pipeline.log_freq == 0 or step == pipeline.steps or ending:
             now = time.perf_counter()
             figures = {
@@ -274,7 +300,18 @@ def train(
             window_start = now
         if step % pipeline.save_freq == 0 or step == pipeline.steps or ending:
             ckpt = get_step_checkpoint_dir(output_dir, pipeline.steps, step)
-            save_checkpoint(ckpt, step, pipeline, accelerator.unwrap_model(policy), optimizer, scheduler, preprocessor, postprocessor, num_processes=1, batch_size=pipeline.batch_size)
+            save_checkpoint(
+                ckpt,
+                step,
+                pipeline,
+                accelerator.unwrap_model(policy),
+                optimizer,
+                scheduler,
+                preprocessor,
+                postprocessor,
+                num_processes=1,
+                batch_size=pipeline.batch_size,
+            )
             update_last_checkpoint(ckpt)
         if ending:
             break

@@ -246,7 +246,9 @@ def decode_batch(msg_type: str, messages: list[bytes]) -> Batch:
             cols = {}
             for s in layout.spans:
                 width = np.dtype(s.dtype).itemsize * s.count
-                cols[s.name] = np.ascontiguousarray(mat[:, s.offset : s.offset + width]).view(s.dtype).reshape(n, s.count)
+                cols[s.name] = (
+                    np.ascontiguousarray(mat[:, s.offset : s.offset + width]).view(s.dtype).reshape(n, s.count)
+                )
             stamp = cols.pop("stamp_sec")[:, 0].astype(np.int64) * 1_000_000_000 + cols.pop("stamp_nanosec")[:, 0]
             return Batch(stamp, cols, (first["frame_id"],), first.get("name"))
     return _decode_slow(msg_type, messages)
@@ -265,7 +267,9 @@ def _decode_slow(msg_type: str, messages: list[bytes]) -> Batch:
         lengths = {len(d[k]) for d in decoded}
         if len(lengths) > 1:
             bad = next(i for i, d in enumerate(decoded) if len(d[k]) != len(decoded[0][k]))
-            raise CdrError(f"field {k!r} has length {len(decoded[bad][k])} in message {bad}, {len(decoded[0][k])} in message 0")
+            raise CdrError(
+                f"field {k!r} has length {len(decoded[bad][k])} in message {bad}, {len(decoded[0][k])} in message 0"
+            )
         cols[k] = np.stack([d[k] for d in decoded])
     names = {d.get("name") for d in decoded}
     if len(names) > 1:

@@ -9,7 +9,14 @@ from types import TracebackType
 
 from mcap.writer import CompressionType, Writer
 
-from schemas.messages import MESSAGE_ENCODING, METADATA_NAME, MSG_DEFINITIONS, SCHEMA_ENCODING, SCHEMA_VERSION, TOPICS_BY_KIND
+from schemas.messages import (
+    MESSAGE_ENCODING,
+    METADATA_NAME,
+    MSG_DEFINITIONS,
+    SCHEMA_ENCODING,
+    SCHEMA_VERSION,
+    TOPICS_BY_KIND,
+)
 
 
 class RecordingWriter:

@@ -24,7 +24,9 @@ N_KEYPOINTS = len(KEYPOINT_NAMES)
 # Robot fingertip links (the URDF's fixed tip links) in the order of the robot fingertip regions
 # T1..T4 and the human keypoints they follow (MediaPipe indices: thumb, index, middle, ring tip).
 FINGERTIP_LINKS: tuple[str, ...] = ("th_tip", "if_tip", "mf_tip", "rf_tip")
-FINGERTIP_KEYPOINTS: tuple[int, ...] = tuple(KEYPOINT_NAMES.index(f"{f}_tip") for f in ("thumb", "index", "middle", "ring"))
+FINGERTIP_KEYPOINTS: tuple[int, ...] = tuple(
+    KEYPOINT_NAMES.index(f"{f}_tip") for f in ("thumb", "index", "middle", "ring")
+)
 WRIST_LINK = "base"  # the URDF root: dex-urdf's wrist frame, origin on the wrist edge of the palm
 WRIST_KEYPOINT = KEYPOINT_NAMES.index("wrist")
 
@@ -53,10 +55,14 @@ class RetargetConfig(BaseModel):
     huber_delta: float = Field(0.02, gt=0, description="Huber (smooth-L1) transition, m of vector error")
     regulariser: float = Field(4e-3, ge=0, description="weight of |q - q_previous|^2 (Dex Retargeting's norm_delta)")
     # 10 Hz keeps human finger motion (a few Hz) and halves the tracker jitter in the joints
-    lowpass_cutoff_hz: float | None = Field(10.0, gt=0, description="first-order low-pass on the output joints; None: off")
+    lowpass_cutoff_hz: float | None = Field(
+        10.0, gt=0, description="first-order low-pass on the output joints; None: off"
+    )
     ftol_abs: float = Field(1e-6, gt=0, description="SLSQP absolute tolerance on the objective")
     max_evaluations: int = Field(500, ge=10, description="objective evaluations per frame before SLSQP stops")
-    max_residual: float = Field(0.08, gt=0, description="a fingertip farther than this from its target is a failed frame")
+    max_residual: float = Field(
+        0.08, gt=0, description="a fingertip farther than this from its target is a failed frame"
+    )
     max_gap_s: float = Field(0.25, gt=0, description="a longer gap between hand-motion frames is missing data")
     time_tolerance_s: float = Field(1e-3, ge=0, description="keypoints and wrist pose of a frame must share its time")
 
@@ -64,7 +70,9 @@ class RetargetConfig(BaseModel):
     def _pairs(self) -> RetargetConfig:
         n = len(self.task_links)
         if n == 0 or not (len(self.origin_links) == len(self.origin_keypoints) == len(self.task_keypoints) == n):
-            raise ValueError("origin_links, task_links, origin_keypoints and task_keypoints must be non-empty and of equal length")
+            raise ValueError(
+                "origin_links, task_links, origin_keypoints and task_keypoints must be non-empty and of equal length"
+            )
         bad = [k for k in (*self.origin_keypoints, *self.task_keypoints) if not 0 <= k < N_KEYPOINTS]
         if bad:
             raise ValueError(f"keypoint indices must lie in 0..{N_KEYPOINTS - 1}, got {bad}")

@@ -11,7 +11,13 @@ import pyarrow.parquet as pq
 
 from touch2robot import lake as lake_io
 from touch2robot.retarget.config import LEAP_DEFAULT, RetargetConfig
-from touch2robot.retarget.retargeter import STATUS_NAMES, HandMotion, HandMotionError, RetargetResult, validate_hand_motion
+from touch2robot.retarget.retargeter import (
+    STATUS_NAMES,
+    HandMotion,
+    HandMotionError,
+    RetargetResult,
+    validate_hand_motion,
+)
 
 POSE_COLUMNS = ("px", "py", "pz", "qw", "qx", "qy", "qz")
 
@@ -32,7 +38,9 @@ def load_hand_motion(lake: Path, recording_id: str, config: RetargetConfig = LEA
     off = np.abs(t_kp - t_wp)
     if len(off) and off.max() > config.time_tolerance_s:
         i = int(np.argmax(off))
-        raise HandMotionError(f"recording {recording_id}: keypoints at t = {t_kp[i]:.4f} s but wrist pose at {t_wp[i]:.4f} s (frame {i})")
+        raise HandMotionError(
+            f"recording {recording_id}: keypoints at t = {t_kp[i]:.4f} s but wrist pose at {t_wp[i]:.4f} s (frame {i})"
+        )
     xyz = kp["xyz"].combine_chunks()
     width = xyz.type.list_size if pa.types.is_fixed_size_list(xyz.type) else 0
     keypoints = xyz.flatten().to_numpy(zero_copy_only=False).reshape(len(t_kp), width)

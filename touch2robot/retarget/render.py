@@ -8,12 +8,20 @@ from pathlib import Path
 import numpy as np
 
 from schemas.glove import FINGERS
-from touch2robot.retarget.retargeter import BASE_FROM_PALM, HandMotion, LeapKinematics, RetargetResult, keypoints_in_wrist
+from touch2robot.retarget.retargeter import (
+    BASE_FROM_PALM,
+    HandMotion,
+    LeapKinematics,
+    RetargetResult,
+    keypoints_in_wrist,
+)
 
 FINGER_COLOURS = {"thumb": "C0", "index": "C1", "middle": "C2", "ring": "C3", "little": "C7"}
 
 
-def comparison_png(motion: HandMotion, result: RetargetResult, path: Path, frames: int = 4, kinematics: LeapKinematics | None = None) -> Path:
+def comparison_png(
+    motion: HandMotion, result: RetargetResult, path: Path, frames: int = 4, kinematics: LeapKinematics | None = None
+) -> Path:
     """Save a PNG of ``frames`` frames from open to closed hand: human keypoints scaled about the wrist (dashed,
     circles) and the robot's links and fingertips (solid, crosses), both in the human wrist frame
     (x to the fingers, y to the thumb, z back of the hand)."""
@@ -41,7 +49,9 @@ def comparison_png(motion: HandMotion, result: RetargetResult, path: Path, frame
             ax.plot(*pts.T, "-", color=FINGER_COLOURS[finger], lw=2.2)
             ax.plot(*pts[-1], "x", color="k", ms=6)
         ax.plot([0.0], [0.0], [0.0], "ks", ms=4)  # the wrist
-        ax.set_title(f"t = {result.t[i]:.2f} s\nmean tip residual {1e3 * np.nanmean(result.residual[i]):.1f} mm", fontsize=9)
+        ax.set_title(
+            f"t = {result.t[i]:.2f} s\nmean tip residual {1e3 * np.nanmean(result.residual[i]):.1f} mm", fontsize=9
+        )
         # equal scales on the three axes around this frame's points, so that lengths compare
         centre = 0.5 * (kp.min(axis=0) + kp.max(axis=0))
         for lim, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):

@@ -34,14 +34,23 @@ import numpy as np
 from touch2robot.geometry import quat_mul, quat_to_mat
 from touch2robot.leap import JOINT_NAMES, hand_urdf
 from touch2robot.leap import description as hd
-from touch2robot.retarget.config import FINGERTIP_KEYPOINTS, FINGERTIP_LINKS, LEAP_DEFAULT, N_KEYPOINTS, WRIST_KEYPOINT, RetargetConfig
+from touch2robot.retarget.config import (
+    FINGERTIP_KEYPOINTS,
+    FINGERTIP_LINKS,
+    LEAP_DEFAULT,
+    N_KEYPOINTS,
+    WRIST_KEYPOINT,
+    RetargetConfig,
+)
 
 try:
     import nlopt
     from dex_retargeting.optimizer import VectorOptimizer
     from dex_retargeting.robot_wrapper import RobotWrapper
 except ImportError as e:  # the library is the optional extra "retarget"
-    raise ImportError(f"kinematic retargeting needs the 'retarget' extra (dex-retargeting): uv sync --all-extras ({e})") from e
+    raise ImportError(
+        f"kinematic retargeting needs the 'retarget' extra (dex-retargeting): uv sync --all-extras ({e})"
+    ) from e
 
 # Per-frame status codes; every code but OK means the frame holds the previous solution.
 OK, SOLVER_ERROR, NON_FINITE, RESIDUAL, INVALID_INPUT = 0, 1, 2, 3, 4
@@ -59,7 +68,10 @@ PALM_IN_HUMAN_WRIST: np.ndarray = BASE_FROM_PALM.T @ np.asarray(hd.PALM_IN_WRIST
 # Robot skeleton for drawings: the links of each finger from the palm to the tip.
 SKELETON: dict[str, tuple[str, ...]] = {
     "thumb": ("palm", "th_mp", "th_bs", "th_px", "th_ds", "th_tip"),
-    **{name: ("palm", f"{f}_bs", f"{f}_px", f"{f}_md", f"{f}_ds", f"{f}_tip") for name, f in (("index", "if"), ("middle", "mf"), ("ring", "rf"))},
+    **{
+        name: ("palm", f"{f}_bs", f"{f}_px", f"{f}_md", f"{f}_ds", f"{f}_tip")
+        for name, f in (("index", "if"), ("middle", "mf"), ("ring", "rf"))
+    },
 }
 
 
@@ -103,7 +115,11 @@ class RetargetResult:
 
 
 def validate_hand_motion(
-    recording_id: str, t: np.ndarray, keypoints: np.ndarray, wrist_pose: np.ndarray, max_gap_s: float = LEAP_DEFAULT.max_gap_s
+    recording_id: str,
+    t: np.ndarray,
+    keypoints: np.ndarray,
+    wrist_pose: np.ndarray,
+    max_gap_s: float = LEAP_DEFAULT.max_gap_s,
 ) -> HandMotion:
     """Check and shape raw hand-motion arrays: ``keypoints`` (T, 21, 3) or (T, 63), ``wrist_pose``
     (T, 7) as px, py, pz, qw, qx, qy, qz. Raises ``HandMotionError`` naming the recording."""
@@ -155,7 +171,9 @@ def hand_length(motion: HandMotion) -> float:
     length = float(np.median(np.linalg.norm(np.diff(chain, axis=1), axis=-1).sum(axis=1)))
     lo, hi = PLAUSIBLE_HAND_LENGTH
     if not lo <= length <= hi:
-        raise HandMotionError(f"recording {motion.recording_id}: hand length {length:.3f} m from the keypoints is outside {lo}..{hi} m")
+        raise HandMotionError(
+            f"recording {motion.recording_id}: hand length {length:.3f} m from the keypoints is outside {lo}..{hi} m"
+        )
     return length
 
 
@@ -205,7 +223,9 @@ class LeapKinematics:
 
     def skeleton(self, q: np.ndarray) -> dict[str, np.ndarray]:
         """Per finger, the link-frame positions (n, 3) from the palm to the tip, base frame."""
-        return {f: self.link_positions(q, [self.robot.get_link_index(n) for n in names]) for f, names in SKELETON.items()}
+        return {
+            f: self.link_positions(q, [self.robot.get_link_index(n) for n in names]) for f, names in SKELETON.items()
+        }
 
 
 class Retargeter:
@@ -291,7 +311,10 @@ class Retargeter:
         q, status = (None, INVALID_INPUT) if not np.isfinite(kp).all() else self._solve(targets)
         if q is not None and self._output is None:
             q = self._settle(q, targets)
-        if q is not None and np.linalg.norm(self.kinematics.tip_positions(q) - tips_target, axis=1).max() > self.config.max_residual:
+        if (
+            q is not None
+            and np.linalg.norm(self.kinematics.tip_positions(q) - tips_target, axis=1).max() > self.config.max_residual
+        ):
             q, status = None, RESIDUAL
         if q is not None:
             self._last = q
@@ -311,7 +334,9 @@ class Retargeter:
         return self._output + alpha * (q - self._output)
 
 
-def retarget_motion(motion: HandMotion, config: RetargetConfig = LEAP_DEFAULT, retargeter: Retargeter | None = None) -> RetargetResult:
+def retarget_motion(
+    motion: HandMotion, config: RetargetConfig = LEAP_DEFAULT, retargeter: Retargeter | None = None
+) -> RetargetResult:
     """Retarget a validated hand motion from its first frame. A given ``retargeter`` is reset and
     its own config is used (it saves loading the model per recording)."""
     rt = retargeter or Retargeter(config)
@@ -324,7 +349,9 @@ def retarget_motion(motion: HandMotion, config: RetargetConfig = LEAP_DEFAULT, r
     for i in range(n):
         joints[i], status[i], residual[i], solve_time[i] = rt.step(local[i], float(motion.t[i]))
     pos, quat = robot_wrist_pose(motion.wrist_pos, motion.wrist_quat)
-    return RetargetResult(motion.recording_id, motion.t.copy(), joints, status, residual, pos, quat, solve_time, scaling)
+    return RetargetResult(
+        motion.recording_id, motion.t.copy(), joints, status, residual, pos, quat, solve_time, scaling
+    )
 
 
 def retarget_sequence(

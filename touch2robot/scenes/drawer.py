@@ -4,7 +4,9 @@ from touch2robot.scenes.spec import GeomSpec, ObjectSpec, SlideSpec, TaskSpec
 
 # Drawer body frame at the centre of its front panel; it slides along world -x (towards the hand).
 FRONT = GeomSpec("box", (0.01, 0.09, 0.04), name="front")
-HANDLE = GeomSpec("capsule", (0.008, 0.045), pos=(-0.035, 0.0, 0.0), quat=(0.7071068, 0.7071068, 0.0, 0.0), name="handle")
+HANDLE = GeomSpec(
+    "capsule", (0.008, 0.045), pos=(-0.035, 0.0, 0.0), quat=(0.7071068, 0.7071068, 0.0, 0.0), name="handle"
+)
 HANDLE_POSTS = (
     GeomSpec("box", (0.0125, 0.005, 0.005), pos=(-0.0225, 0.04, 0.0), name="post_left"),
     GeomSpec("box", (0.0125, 0.005, 0.005), pos=(-0.0225, -0.04, 0.0), name="post_right"),

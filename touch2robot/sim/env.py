@@ -23,7 +23,10 @@ from touch2robot.sim.success import SuccessTracker
 STATE_SPEC = mujoco.mjtState.mjSTATE_FULLPHYSICS
 # control vector per substep, in MuJoCo's component order: ctrl (nu), qfrc_applied (nv), mocap pos (3), quat (4)
 CONTROL_SPEC = (
-    mujoco.mjtState.mjSTATE_CTRL | mujoco.mjtState.mjSTATE_QFRC_APPLIED | mujoco.mjtState.mjSTATE_MOCAP_POS | mujoco.mjtState.mjSTATE_MOCAP_QUAT
+    mujoco.mjtState.mjSTATE_CTRL
+    | mujoco.mjtState.mjSTATE_QFRC_APPLIED
+    | mujoco.mjtState.mjSTATE_MOCAP_POS
+    | mujoco.mjtState.mjSTATE_MOCAP_QUAT
 )
 
 
@@ -114,7 +117,9 @@ class BatchEnv:
         self._control[:, :, :nu] = self.joint_targets[:, None, :]
         dof = self.scene.object_dof
         width = 1 if self.scene.is_drawer else 6
-        self._control[:, :, nu + dof : nu + dof + width] = 0.0 if object_force is None else np.asarray(object_force)[:, None, :]
+        self._control[:, :, nu + dof : nu + dof + width] = (
+            0.0 if object_force is None else np.asarray(object_force)[:, None, :]
+        )
         self._control[:, :, nu + nv : nu + nv + 3] = self.wrist_pos[:, None, :]
         self._control[:, :, nu + nv + 3 :] = self.wrist_quat[:, None, :]
         self._rollout.rollout(
@@ -145,7 +150,9 @@ class BatchEnv:
         if qpos is not None:
             state[:, self.layout.qpos] = qpos
         self.state[ids] = state
-        self.joint_targets[ids] = self.home_state[self.layout.qpos][self.scene.hand_qpos] if joint_targets is None else joint_targets
+        self.joint_targets[ids] = (
+            self.home_state[self.layout.qpos][self.scene.hand_qpos] if joint_targets is None else joint_targets
+        )
         self.wrist_pos[ids] = self.scene.home_wrist_pos if wrist_pos is None else wrist_pos
         self.wrist_quat[ids] = self.scene.home_wrist_quat if wrist_quat is None else wrist_quat
         if qpos is None and wrist_pos is None and wrist_quat is None:
@@ -165,7 +172,14 @@ class BatchEnv:
         self.time_step[ids] = 0
         self.tracker.reset(ids, self.object_pos[ids], self.object_quat[ids])
 
-    def reset_pose(self, ids: np.ndarray, joints: np.ndarray, wrist_pose: np.ndarray, object_pose: np.ndarray, drawer_opening: np.ndarray) -> None:
+    def reset_pose(
+        self,
+        ids: np.ndarray,
+        joints: np.ndarray,
+        wrist_pose: np.ndarray,
+        object_pose: np.ndarray,
+        drawer_opening: np.ndarray,
+    ) -> None:
         """Reset copies ``ids`` at rest to a recorded configuration: hand joints (k, 16) with the
         servos holding them, wrist body and mocap target at ``wrist_pose`` (k, 7: pos, quat), the
         object at ``object_pose`` (k, 7), or the drawer at ``drawer_opening`` (k,)."""

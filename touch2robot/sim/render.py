@@ -21,7 +21,9 @@ def select_gl_backend() -> str:
     with a warning saying so). An explicit MUJOCO_GL in the environment wins."""
     if "MUJOCO_GL" not in os.environ:
         if "mujoco" in sys.modules:
-            warnings.warn("mujoco was imported before MUJOCO_GL was set: its default GL backend stays in use", stacklevel=2)
+            warnings.warn(
+                "mujoco was imported before MUJOCO_GL was set: its default GL backend stays in use", stacklevel=2
+            )
         if ctypes.util.find_library("EGL"):
             os.environ["MUJOCO_GL"] = "egl"
         else:
@@ -41,7 +43,9 @@ from touch2robot.sim.config import SimConfig  # noqa: E402
 from touch2robot.sim.scene import CAMERAS, build_scene  # noqa: E402
 
 
-def render_scene_images(task: str, width: int = 224, height: int = 224, cfg: SimConfig | None = None) -> dict[str, np.ndarray]:
+def render_scene_images(
+    task: str, width: int = 224, height: int = 224, cfg: SimConfig | None = None
+) -> dict[str, np.ndarray]:
     """RGB images (height, width, 3) of a task scene at its reset state, one per camera."""
     scene = build_scene(task, cfg)
     data = mujoco.MjData(scene.model)

@@ -24,7 +24,9 @@ class Objective(Protocol):
     def reset(self, env: BatchEnv, ids: np.ndarray, rng: np.random.Generator) -> None:
         """Reset copies ``ids`` (env.reset plus the objective's own per-copy state)."""
 
-    def command(self, env: BatchEnv, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+    def command(
+        self, env: BatchEnv, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
         """Policy actions (N, num_actions) -> the arguments of ``BatchEnv.step``: joint targets
         (N, 16), wrist pos, wrist quat, object force (None = unchanged / none)."""
 
@@ -49,7 +51,9 @@ class RslVecEnv(VecEnv):
     ``step`` (rsl-rl has no reset call); ``extras["time_outs"]`` marks truncations so that
     PPO bootstraps them, and ``extras["log"]`` carries the mean of each reward term."""
 
-    def __init__(self, env: BatchEnv, objective: Objective, max_episode_length: int, seed: int = 0, device: str | None = None) -> None:
+    def __init__(
+        self, env: BatchEnv, objective: Objective, max_episode_length: int, seed: int = 0, device: str | None = None
+    ) -> None:
         self.env = env
         self.objective = objective
         self.num_envs = env.n
@@ -79,7 +83,9 @@ class RslVecEnv(VecEnv):
         self.episode_length_buf += 1
         reward, terms = self.objective.reward(self.env, a)
         terminated = self.objective.terminated(self.env)
-        time_outs = (self.episode_length_buf >= self.max_episode_length).cpu().numpy() | self.objective.truncated(self.env)
+        time_outs = (self.episode_length_buf >= self.max_episode_length).cpu().numpy() | self.objective.truncated(
+            self.env
+        )
         done = terminated | time_outs
         log = {f"reward/{k}": float(np.mean(v)) for k, v in terms.items()}
         log["contact/any_region"] = float(self.env.region_contact.any(axis=1).mean())
@@ -105,7 +111,9 @@ def episode_steps(env: BatchEnv) -> int:
     return max(1, round(seconds / env.cfg.control_dt))
 
 
-def make_vec_env(task: str, objective: Objective, cfg: SimConfig | None = None, max_episode_length: int | None = None) -> RslVecEnv:
+def make_vec_env(
+    task: str, objective: Objective, cfg: SimConfig | None = None, max_episode_length: int | None = None
+) -> RslVecEnv:
     """An rsl-rl VecEnv of ``cfg.n_envs`` copies of a task scene driven by ``objective``."""
     cfg = cfg or SimConfig()
     env = BatchEnv(build_scene(task, cfg), cfg)
@@ -118,7 +126,9 @@ class JointTracking:
 
     num_actions = 16
 
-    def __init__(self, amplitude: float = 0.35, frequency_hz: float = 0.8, action_scale: float = 0.3, sigma: float = 0.5) -> None:
+    def __init__(
+        self, amplitude: float = 0.35, frequency_hz: float = 0.8, action_scale: float = 0.3, sigma: float = 0.5
+    ) -> None:
         self.amplitude, self.frequency, self.action_scale, self.sigma = amplitude, frequency_hz, action_scale, sigma
         self.phase = np.zeros((0, 16))
 
@@ -142,7 +152,9 @@ class JointTracking:
 
     def observe(self, env: BatchEnv) -> dict[str, np.ndarray]:
         """Joint state and the next two reference frames, the same for actor and critic."""
-        obs = np.concatenate([env.hand_qpos, 0.1 * env.hand_qvel, self._reference(env, 1), self._reference(env, 2)], axis=1)
+        obs = np.concatenate(
+            [env.hand_qpos, 0.1 * env.hand_qvel, self._reference(env, 1), self._reference(env, 2)], axis=1
+        )
         return {"actor": obs, "critic": obs}
 
     def reward(self, env: BatchEnv, actions: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:

@@ -30,7 +30,16 @@ OBJECT_BODY = "object"
 GRASP_POINT_IN_PALM = (-0.02, -0.035, -0.09)
 # palm facing down, fingers along world +x: wrist +x (palmar normal) = world -z, wrist +z = world +x
 PALM_DOWN = np.array([math.sqrt(0.5), 0.0, math.sqrt(0.5), 0.0])
-HOME_JOINTS = {"mcp": 0.3, "rot": 0.0, "pip": 0.3, "dip": 0.3, "th_cmc": 0.6, "th_axl": 0.6, "th_mcp": 0.3, "th_ipl": 0.0}
+HOME_JOINTS = {
+    "mcp": 0.3,
+    "rot": 0.0,
+    "pip": 0.3,
+    "dip": 0.3,
+    "th_cmc": 0.6,
+    "th_axl": 0.6,
+    "th_mcp": 0.3,
+    "th_ipl": 0.0,
+}
 
 
 @dataclass(frozen=True)
@@ -126,14 +135,45 @@ def scene_xml(spec: TaskSpec, cfg: SimConfig) -> str:
     sub(sub(root, "visual"), "global", offwidth="640", offheight="480")
     sub(root, "statistic", center="0 0 0.05", extent="0.4")
     asset = section(root, "asset")
-    sub(asset, "texture", name="grid", type="2d", builtin="checker", rgb1="0.82 0.78 0.72", rgb2="0.74 0.7 0.64", width="256", height="256")
+    sub(
+        asset,
+        "texture",
+        name="grid",
+        type="2d",
+        builtin="checker",
+        rgb1="0.82 0.78 0.72",
+        rgb2="0.74 0.7 0.64",
+        width="256",
+        height="256",
+    )
     sub(asset, "material", name="table", texture="grid", texrepeat="8 8")
-    sub(asset, "texture", name="sky", type="skybox", builtin="gradient", rgb1="0.6 0.7 0.8", rgb2="0.15 0.2 0.25", width="64", height="64")
+    sub(
+        asset,
+        "texture",
+        name="sky",
+        type="skybox",
+        builtin="gradient",
+        rgb1="0.6 0.7 0.8",
+        rgb2="0.15 0.2 0.25",
+        width="64",
+        height="64",
+    )
     world = section(root, "worldbody")
     sub(world, "light", name="key", pos="0.3 -0.3 1.2", dir="-0.25 0.25 -1", diffuse="0.8 0.8 0.8", castshadow="false")
-    sub(world, "light", name="fill", pos="-0.4 0.4 1.0", dir="0.3 -0.3 -1", diffuse="0.35 0.35 0.35", castshadow="false")
+    sub(
+        world, "light", name="fill", pos="-0.4 0.4 1.0", dir="0.3 -0.3 -1", diffuse="0.35 0.35 0.35", castshadow="false"
+    )
     hx, hy = spec.table_half_extent
-    sub(world, "geom", name="table", type="box", size=(hx, hy, TABLE_HALF_THICKNESS), pos=(0, 0, -TABLE_HALF_THICKNESS), material="table", friction=(TABLE_FRICTION, 0.005, 0.0001))
+    sub(
+        world,
+        "geom",
+        name="table",
+        type="box",
+        size=(hx, hy, TABLE_HALF_THICKNESS),
+        pos=(0, 0, -TABLE_HALF_THICKNESS),
+        material="table",
+        friction=(TABLE_FRICTION, 0.005, 0.0001),
+    )
 
     obj = spec.object
     body = sub(world, "body", name=OBJECT_BODY, pos=obj.init_pos, quat=obj.init_quat)
@@ -145,7 +185,19 @@ def scene_xml(spec: TaskSpec, cfg: SimConfig) -> str:
     # split the mass over the primitives by volume so that MuJoCo composes a consistent inertia
     volumes = np.array([_geom_volume(g) for g in obj.geoms])
     for g, m in zip(obj.geoms, obj.mass * volumes / volumes.sum()):
-        sub(body, "geom", name=f"object_{g.name or 'geom'}", type=g.shape, size=g.size, pos=g.pos, quat=g.quat, mass=m, rgba=obj.rgba, friction=(obj.friction, 0.005, 0.0001), condim="4")
+        sub(
+            body,
+            "geom",
+            name=f"object_{g.name or 'geom'}",
+            type=g.shape,
+            size=g.size,
+            pos=g.pos,
+            quat=g.quat,
+            mass=m,
+            rgba=obj.rgba,
+            friction=(obj.friction, 0.005, 0.0001),
+            condim="4",
+        )
     if spec.slide is not None:
         cabinet = sub(world, "body", name="cabinet")
         _add_geoms(cabinet, spec.slide.cabinet, "cabinet", rgba=(0.8, 0.78, 0.74, 1.0))
@@ -167,7 +219,15 @@ def _add_markers(world: ET.Element, spec: TaskSpec) -> None:
     if spec.goal_pos is not None:
         sub(world, "site", name="goal", type="sphere", size="0.012", pos=spec.goal_pos, rgba="0.1 0.8 0.2 0.5")
     for i, (x, y) in enumerate(spec.wipe_path or ()):
-        sub(world, "site", name=f"waypoint_{i}", type="cylinder", size="0.012 0.0005", pos=(x, y, 0.0005), rgba="0.1 0.6 0.9 0.6")
+        sub(
+            world,
+            "site",
+            name=f"waypoint_{i}",
+            type="cylinder",
+            size="0.012 0.0005",
+            pos=(x, y, 0.0005),
+            rgba="0.1 0.6 0.9 0.6",
+        )
 
 
 def build_scene(task: str | TaskSpec, cfg: SimConfig | None = None) -> Scene:
@@ -196,7 +256,9 @@ def build_scene(task: str | TaskSpec, cfg: SimConfig | None = None) -> Scene:
         object_qpos=int(model.jnt_qposadr[obj_joint.id]),
         region_sensors=np.array([model.sensor_adr[s.id] for s in sensors]),
         tip_sensors=np.array([model.sensor_adr[s.id] + np.arange(3) for s in tips]),
-        region_pos_sensors=np.array([model.sensor_adr[model.sensor(f"{r}_zone_pos").id] + np.arange(3) for r in hd.REGION_NAMES]),
+        region_pos_sensors=np.array(
+            [model.sensor_adr[model.sensor(f"{r}_zone_pos").id] + np.arange(3) for r in hd.REGION_NAMES]
+        ),
         object_dof=int(model.jnt_dofadr[obj_joint.id]),
         object_mass=float(model.body_mass[model.body(OBJECT_BODY).id]),
         object_inertia=float(model.body_inertia[model.body(OBJECT_BODY).id].mean()),

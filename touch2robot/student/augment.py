@@ -47,7 +47,9 @@ class DemoSplit:
         return None
 
 
-def split_demonstrations(demos: dict[str, list[str]], held_out_fraction: float, val_fraction: float, seed: int) -> DemoSplit:
+def split_demonstrations(
+    demos: dict[str, list[str]], held_out_fraction: float, val_fraction: float, seed: int
+) -> DemoSplit:
     """Split each task's demonstrations (recording ids) by demonstration, never by frame.
 
     Per task (seeded order): round(held_out_fraction x n) held out (at most n - 1), then
@@ -109,7 +111,9 @@ def paired_sequences(rollouts: pa.Table, refs: dict[str, DemoReference], thresho
         frame = np.minimum(step, ref.length - 1)
         t_ref = rows["t_ref"].to_numpy()
         if not np.allclose(ref.t_ref[frame], t_ref, atol=1e-6):
-            raise StudentDataError(f"rollout {rid}: t_ref does not follow demonstration {ref_id} (re-run the teachers after a new retargeting)")
+            raise StudentDataError(
+                f"rollout {rid}: t_ref does not follow demonstration {ref_id} (re-run the teachers after a new retargeting)"
+            )
         f = frame[1:]
         out.append(
             PairedSequence(
@@ -166,7 +170,9 @@ def _rows(seq: PairedSequence, sample_id: str, split: str, augment: int, noise: 
     )
 
 
-def augment(train: list[PairedSequence], count: int, noise_std: float, seed: int, val: list[PairedSequence] = ()) -> pa.Table:
+def augment(
+    train: list[PairedSequence], count: int, noise_std: float, seed: int, val: list[PairedSequence] = ()
+) -> pa.Table:
     """``student_dataset`` rows of one task: ``count`` training rollouts (the teacher rollouts
     unchanged, then seeded noisy copies) and the validation rollouts unchanged (a task can
     have validation rollouts only: ``count`` 0)."""

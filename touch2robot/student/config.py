@@ -38,10 +38,16 @@ class StudentConfig(_Frozen):
     # balanced: augmented_rollouts / len(tasks) per task)
     teacher_method: str = Field("touch2robot", description="whose teacher rollouts are distilled")
     augmented_rollouts: int = Field(400, ge=1, description="training rollouts in total, balanced over the tasks")
-    joint_noise_std: float = Field(0.1, ge=0, description="rad: N(0, std^2) per frame and joint, added to input and target alike")
+    joint_noise_std: float = Field(
+        0.1, ge=0, description="rad: N(0, std^2) per frame and joint, added to input and target alike"
+    )
     # --- demonstrations: held out for reconstruction, and validation within the training ones
-    held_out_fraction: float = Field(0.25, ge=0, lt=1, description="per task, demonstrations reconstructed and never trained on")
-    val_fraction: float = Field(0.2, ge=0, lt=1, description="per task, training demonstrations used for validation only")
+    held_out_fraction: float = Field(
+        0.25, ge=0, lt=1, description="per task, demonstrations reconstructed and never trained on"
+    )
+    val_fraction: float = Field(
+        0.2, ge=0, lt=1, description="per task, training demonstrations used for validation only"
+    )
     # --- model (Table VIII: history, geometry, layers, heads)
     history: int = Field(16, ge=1, description="H: causal history in control steps")
     geometry_dim: int = Field(32, ge=1, description="PointNet feature of the object's surface points")
@@ -54,8 +60,12 @@ class StudentConfig(_Frozen):
     # --- inputs and ablation switches
     use_tactile: bool = Field(True, description="feed the human's tactile preference")
     use_geometry: bool = Field(True, description="feed the PointNet geometry feature")
-    tactile_dropout: float = Field(0.25, ge=0, le=1, description="probability that a training window's whole preference is hidden")
-    ablations: dict[str, Ablation] = Field(default_factory=default_ablations, description="variants trained beside the full model")
+    tactile_dropout: float = Field(
+        0.25, ge=0, le=1, description="probability that a training window's whole preference is hidden"
+    )
+    ablations: dict[str, Ablation] = Field(
+        default_factory=default_ablations, description="variants trained beside the full model"
+    )
     # --- distillation (Table VIII: AdamW, batch 128, lr 3e-4)
     batch_size: int = Field(128, ge=1)
     lr: float = Field(3e-4, gt=0)
@@ -79,7 +89,9 @@ class StudentConfig(_Frozen):
         if name == "full":
             return self
         if name not in self.ablations:
-            raise KeyError(f"student variant {name!r} is neither 'full' nor in student.ablations (have {sorted(self.ablations)})")
+            raise KeyError(
+                f"student variant {name!r} is neither 'full' nor in student.ablations (have {sorted(self.ablations)})"
+            )
         return self.model_copy(update={k: v for k, v in self.ablations[name].model_dump().items() if v is not None})
 
     @property

@@ -25,7 +25,14 @@ from touch2robot.student.features import reference_inputs
 from touch2robot.student.infer import StudentOutput, predict_recording
 from touch2robot.student.model import StudentNet
 from touch2robot.teachers.config import TeacherConfig
-from touch2robot.teachers.objective import JOINT_ACTIONS, NUM_ACTIONS, WRIST_POS_ACTIONS, WRIST_ROT_ACTIONS, DemoTracking, stack_references
+from touch2robot.teachers.objective import (
+    JOINT_ACTIONS,
+    NUM_ACTIONS,
+    WRIST_POS_ACTIONS,
+    WRIST_ROT_ACTIONS,
+    DemoTracking,
+    stack_references,
+)
 from touch2robot.teachers.reference import DemoReference
 from touch2robot.teachers.rollouts import Policy, record, rollout_id, summary
 
@@ -39,7 +46,9 @@ def _per_unit(values: np.ndarray, scale: float) -> np.ndarray:
     return values / scale if scale > 0 else np.zeros_like(values)
 
 
-def student_policy(env: BatchEnv, objective: DemoTracking, outputs: list[StudentOutput], config: TeacherConfig) -> Policy:
+def student_policy(
+    env: BatchEnv, objective: DemoTracking, outputs: list[StudentOutput], config: TeacherConfig
+) -> Policy:
     """A ``record`` policy replaying the student's outputs (one per demonstration of the
     objective's references) as teacher residual actions."""
     joints = _pad([o.joints for o in outputs])
@@ -48,7 +57,9 @@ def student_policy(env: BatchEnv, objective: DemoTracking, outputs: list[Student
     def act(obs: dict[str, np.ndarray]) -> np.ndarray:
         demo, frame = objective.demo, objective.frame(env, 1)
         actions = np.zeros((env.n, NUM_ACTIONS))
-        actions[:, JOINT_ACTIONS] = _per_unit(joints[demo, frame] - objective.refs.joints[demo, frame], config.action_scale)
+        actions[:, JOINT_ACTIONS] = _per_unit(
+            joints[demo, frame] - objective.refs.joints[demo, frame], config.action_scale
+        )
         actions[:, WRIST_POS_ACTIONS] = _per_unit(wrist[demo, frame, :3], config.wrist_pos_scale_m)
         actions[:, WRIST_ROT_ACTIONS] = _per_unit(wrist[demo, frame, 3:], config.wrist_rot_scale_rad)
         return actions
@@ -56,18 +67,32 @@ def student_policy(env: BatchEnv, objective: DemoTracking, outputs: list[Student
     return act
 
 
-def execute(env: BatchEnv, objective: DemoTracking, outputs: list[StudentOutput], config: TeacherConfig, method: str) -> tuple[pa.Table, pa.Table]:
+def execute(
+    env: BatchEnv, objective: DemoTracking, outputs: list[StudentOutput], config: TeacherConfig, method: str
+) -> tuple[pa.Table, pa.Table]:
     """One rollout per demonstration of ``objective.refs`` (``env.n`` copies, copy i follows
     demonstration i): (``rollouts`` rows of origin student, ``contacts`` rows of source
     reconstructed)."""
     if len(outputs) != len(objective.refs.ids) or env.n != len(outputs):
-        raise ValueError(f"{len(outputs)} student outputs for {len(objective.refs.ids)} demonstrations and {env.n} env copies")
+        raise ValueError(
+            f"{len(outputs)} student outputs for {len(objective.refs.ids)} demonstrations and {env.n} env copies"
+        )
     rollouts, contacts = record(env, objective, student_policy(env, objective, outputs, config), method, "student")
-    contacts = contacts.set_column(contacts.schema.get_field_index("source"), "source", pa.array(["reconstructed"] * len(contacts)))
+    contacts = contacts.set_column(
+        contacts.schema.get_field_index("source"), "source", pa.array(["reconstructed"] * len(contacts))
+    )
     return rollouts, contacts
 
 
-def prediction_rows(outputs: list[StudentOutput], refs_ids: tuple[str, ...], t_ref: list[np.ndarray], task: str, method: str, variant: str, dt: float) -> pa.Table:
+def prediction_rows(
+    outputs: list[StudentOutput],
+    refs_ids: tuple[str, ...],
+    t_ref: list[np.ndarray],
+    task: str,
+    method: str,
+    variant: str,
+    dt: float,
+) -> pa.Table:
     """``student_predictions`` rows: step j of demonstration i -> sequence ``student-<method>-<task>-<i>``,
     t = j dt (the rollout's clock), its contact logits per region."""
     tables = []
@@ -132,18 +157,25 @@ def reconstruct_task(net: StudentNet, task: str, refs: list[DemoReference], conf
     contacts = contacts.filter(pc.is_in(contacts["reference_id"], keep))
     figures = {k: float(v) for k, v in summary(scored, stacked, config.sim.contact_threshold_n).items()}
     chosen = [i for i, r in enumerate(refs) if r.recording_id in evaluated]
-    predicted = contact_scores(np.concatenate([refs[i].preference for i in chosen]), np.concatenate([outputs[i].contact_logits > 0 for i in chosen]))
+    predicted = contact_scores(
+        np.concatenate([refs[i].preference for i in chosen]),
+        np.concatenate([outputs[i].contact_logits > 0 for i in chosen]),
+    )
     figures["predicted_contact_f1"] = predicted.f1
     student_err, kinematic_err = [], []
     if teacher_rollouts is not None:
         by_id = {refs[i].recording_id: (refs[i], outputs[i]) for i in chosen}
-        for seq in paired_sequences(teacher_rollouts, {k: v[0] for k, v in by_id.items()}, config.sim.contact_threshold_n):
+        for seq in paired_sequences(
+            teacher_rollouts, {k: v[0] for k, v in by_id.items()}, config.sim.contact_threshold_n
+        ):
             ref, out = by_id[seq.reference_id]
             frame = np.minimum(seq.step, ref.length - 1)
             student_err.append(np.abs(out.joints[frame] - seq.target_joints).ravel())
             kinematic_err.append(np.abs(ref.joints[frame] - seq.target_joints).ravel())
     figures["joint_error_student"] = float(np.concatenate(student_err).mean()) if student_err else float("nan")
     figures["joint_error_kinematic"] = float(np.concatenate(kinematic_err).mean()) if kinematic_err else float("nan")
-    predictions = prediction_rows(outputs, stacked.ids, [r.t_ref for r in refs], task, method, variant, config.sim.control_dt)
+    predictions = prediction_rows(
+        outputs, stacked.ids, [r.t_ref for r in refs], task, method, variant, config.sim.control_dt
+    )
     predictions = predictions.filter(pc.is_in(predictions["reference_id"], keep))
     return Reconstruction(rollouts, contacts, predictions, figures)

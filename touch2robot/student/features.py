@@ -39,7 +39,9 @@ def _canonical(quat: np.ndarray) -> np.ndarray:
     return np.where(quat[:, :1] < 0, -quat, quat)
 
 
-def step_inputs(joints: np.ndarray, wrist_pose: np.ndarray, object_pose: np.ndarray, preference: np.ndarray | None) -> np.ndarray:
+def step_inputs(
+    joints: np.ndarray, wrist_pose: np.ndarray, object_pose: np.ndarray, preference: np.ndarray | None
+) -> np.ndarray:
     """(T, INPUT_DIM) float32 inputs from (T, 16) joints, (T, 7) wrist and object poses and the
     (T, 8) preference (None: no glove, the preference channels are hidden)."""
     T = len(joints)

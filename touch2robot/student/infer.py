@@ -94,7 +94,9 @@ def _frozen(net: StudentNet, window: torch.Tensor, geometry: torch.Tensor) -> to
     (TorchScript's profiling executor specialises the graph on its first runs: a live first step
     would otherwise take tens of milliseconds)."""
     with torch.no_grad():
-        traced = torch.jit.optimize_for_inference(torch.jit.freeze(torch.jit.trace(net, (window, geometry), check_trace=False)))
+        traced = torch.jit.optimize_for_inference(
+            torch.jit.freeze(torch.jit.trace(net, (window, geometry), check_trace=False))
+        )
     with torch.inference_mode():
         for _ in range(3):
             traced(window, geometry)

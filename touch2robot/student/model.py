@@ -44,11 +44,15 @@ class StudentNet(nn.Module):
         self.geometry_dim = cfg.geometry_dim
         self.register_buffer("input_mean", torch.zeros(INPUT_DIM))
         self.register_buffer("input_std", torch.ones(INPUT_DIM))
-        self.register_buffer("causal_mask", torch.triu(torch.ones(cfg.history, cfg.history, dtype=torch.bool), diagonal=1))
+        self.register_buffer(
+            "causal_mask", torch.triu(torch.ones(cfg.history, cfg.history, dtype=torch.bool), diagonal=1)
+        )
         self.pointnet = PointNetEncoder(cfg.pointnet_hidden, cfg.geometry_dim)
         self.embed = nn.Linear(INPUT_DIM + cfg.geometry_dim, cfg.d_model)
         self.position = nn.Parameter(0.02 * torch.randn(cfg.history, cfg.d_model))
-        layer = nn.TransformerEncoderLayer(cfg.d_model, cfg.heads, cfg.ff_dim, cfg.dropout, batch_first=True, norm_first=True)
+        layer = nn.TransformerEncoderLayer(
+            cfg.d_model, cfg.heads, cfg.ff_dim, cfg.dropout, batch_first=True, norm_first=True
+        )
         self.encoder = nn.TransformerEncoder(layer, cfg.layers, enable_nested_tensor=False)
         self.norm = nn.LayerNorm(cfg.d_model)
         self.head = nn.Linear(cfg.d_model, OUTPUT_DIM)
@@ -104,4 +108,3 @@ class ServingStudent(nn.Module):
         window = packed[:, : H * INPUT_DIM].reshape(-1, H, INPUT_DIM)
         cloud = packed[:, H * INPUT_DIM :].reshape(-1, self.points, 3)
         return self.net(window, self.net.geometry(cloud))[:, -1]
-

@@ -67,7 +67,9 @@ def windows_from_table(table: pa.Table, tasks: list[str], history: int) -> Windo
         rows = table.slice(a, b - a)
         wrist = column(rows, "wrist_pose")
         arrays = {
-            "inputs": step_inputs(column(rows, "kinematic_joints"), wrist, column(rows, "object_pose"), column(rows, "preference")),
+            "inputs": step_inputs(
+                column(rows, "kinematic_joints"), wrist, column(rows, "object_pose"), column(rows, "preference")
+            ),
             "joints": column(rows, "target_joints"),
             "wrist": wrist_residual(wrist, column(rows, "target_wrist")) / WRIST_UNITS,
             "contact": column(rows, "contact"),
@@ -97,7 +99,9 @@ def hide_tactile(inputs: torch.Tensor, hidden: torch.Tensor) -> torch.Tensor:
     return inputs * keep
 
 
-def losses(net: StudentNet, batch: dict[str, torch.Tensor], geometry: torch.Tensor, cfg: StudentConfig) -> dict[str, torch.Tensor]:
+def losses(
+    net: StudentNet, batch: dict[str, torch.Tensor], geometry: torch.Tensor, cfg: StudentConfig
+) -> dict[str, torch.Tensor]:
     out = net(batch["inputs"], geometry[batch["cloud"]])
     joints, wrist, logits = split_outputs(out)
     valid = batch["valid"]
@@ -106,12 +110,16 @@ def losses(net: StudentNet, batch: dict[str, torch.Tensor], geometry: torch.Tens
         "wrist": F.mse_loss(wrist[valid], batch["wrist"][valid]),
         "contact": F.binary_cross_entropy_with_logits(logits[valid], batch["contact"][valid]),
     }
-    terms["loss"] = cfg.joint_weight * terms["joint"] + cfg.wrist_weight * terms["wrist"] + cfg.contact_weight * terms["contact"]
+    terms["loss"] = (
+        cfg.joint_weight * terms["joint"] + cfg.wrist_weight * terms["wrist"] + cfg.contact_weight * terms["contact"]
+    )
     return terms
 
 
 @torch.inference_mode()
-def validate(net: StudentNet, val: Windows, clouds: torch.Tensor, cfg: StudentConfig, batch: int = 1024) -> dict[str, float]:
+def validate(
+    net: StudentNet, val: Windows, clouds: torch.Tensor, cfg: StudentConfig, batch: int = 1024
+) -> dict[str, float]:
     """Mean loss terms over the validation windows (NaN when there are none)."""
     if len(val) == 0:
         return {"loss": math.nan, "joint": math.nan, "wrist": math.nan, "contact": math.nan}
@@ -191,7 +199,13 @@ def train(train_set: Windows, val_set: Windows, clouds: torch.Tensor, cfg: Stude
             n = step - (curve[-1]["step"] if curve else 0)
             val = validate(net, val_set, clouds, cfg)
             curve.append({"step": step, **val})
-            log(step, {**{f"train/{k}": v / max(n, 1) for k, v in running.items()}, **{f"val/{k}": v for k, v in val.items()}})
+            log(
+                step,
+                {
+                    **{f"train/{k}": v / max(n, 1) for k, v in running.items()},
+                    **{f"val/{k}": v for k, v in val.items()},
+                },
+            )
             running = {}
         stopping = should_stop is not None and should_stop()
         if step % cfg.checkpoint_interval == 0 or step == cfg.steps or stopping:
@@ -208,5 +222,3 @@ def load_net(folder: Path, cfg: StudentConfig) -> StudentNet:
     net = StudentNet(cfg)
     net.load_state_dict(torch.load(folder / CHECKPOINT, weights_only=False)["net"])
     return net.eval()
-
-

@@ -76,7 +76,9 @@ def rotate(spec: TaskSpec, hand: HumanHand, rng: np.random.Generator, pace: floa
         else:
             b.phase(0.5 * pace, wrist_pos=_offset(grasp, hand_quat, [0.0, 0.0, 0.02]), wrist_quat=hand_quat)
             b.phase(0.3 * pace, wrist_pos=grasp)
-        q = close_fingers(hand, scene, grasp, hand_quat, obj_pos, obj_quat, Q_OPEN, Q_CLOSE, _depths(rng), fingers=(0, 1, 2, 3))
+        q = close_fingers(
+            hand, scene, grasp, hand_quat, obj_pos, obj_quat, Q_OPEN, Q_CLOSE, _depths(rng), fingers=(0, 1, 2, 3)
+        )
         b.phase(0.5 * pace, joints=q)
         b.carry(1.0 * pace, obj_pos, _yaw(yaw0 + (k + 1) * step))
         b.phase(0.4 * pace, joints=Q_OPEN)
@@ -118,7 +120,9 @@ def drawer(spec: TaskSpec, hand: HumanHand, rng: np.random.Generator, pace: floa
     b = _Builder(grasp + [-0.10, 0.0, 0.03], hand_quat, Q_OPEN, obj_pos, obj_quat)
     b.hold(0.3 * pace)
     b.phase(1.2 * pace, wrist_pos=grasp)
-    q = close_fingers(hand, scene, grasp, hand_quat, obj_pos, obj_quat, Q_OPEN, Q_CLOSE, _depths(rng), fingers=(1, 2, 3, 4, 0))
+    q = close_fingers(
+        hand, scene, grasp, hand_quat, obj_pos, obj_quat, Q_OPEN, Q_CLOSE, _depths(rng), fingers=(1, 2, 3, 4, 0)
+    )
     b.phase(0.6 * pace, joints=q)
     opening = rng.uniform(0.13, min(0.17, spec.slide.range[1]))
     b.carry(2.0 * pace, obj_pos + opening * np.asarray(spec.slide.axis), obj_quat)

@@ -44,7 +44,11 @@ class RecordingJob:
     @property
     def stem(self) -> str:
         base = f"{self.task}_s{self.subject:02d}_d{self.demo:02d}"
-        return {"glove_session": f"{base}_glove", "robot_replay": f"{base}_{self.method}_replay", "robot_calibration": f"{base}_{self.method}_calib"}[self.kind]
+        return {
+            "glove_session": f"{base}_glove",
+            "robot_replay": f"{base}_{self.method}_replay",
+            "robot_calibration": f"{base}_{self.method}_calib",
+        }[self.kind]
 
     @property
     def file_name(self) -> str:
@@ -94,7 +98,9 @@ def _region_forces(taxel_force: np.ndarray) -> np.ndarray:
     return np.stack([taxel_force[:, _REGION_IDX[r]].sum(axis=1) for r in HUMAN_REGIONS], axis=1)
 
 
-def _write_groundtruth(path: Path, t: np.ndarray, regions: tuple[str, ...], force: np.ndarray, extra: dict | None = None) -> None:
+def _write_groundtruth(
+    path: Path, t: np.ndarray, regions: tuple[str, ...], force: np.ndarray, extra: dict | None = None
+) -> None:
     n = len(t)
     cols = {
         "t": np.repeat(t, len(regions)),
@@ -113,7 +119,9 @@ def _write_groundtruth(path: Path, t: np.ndarray, regions: tuple[str, ...], forc
 
 def write_recording(config: SynthConfig, job: RecordingJob, recordings: Path, groundtruth: Path) -> Path:
     """Write one recording (and its ground truth); returns the MCAP path."""
-    writer = {"glove_session": _write_glove, "robot_replay": _write_replay, "robot_calibration": _write_calibration}[job.kind]
+    writer = {"glove_session": _write_glove, "robot_replay": _write_replay, "robot_calibration": _write_calibration}[
+        job.kind
+    ]
     path = recordings / job.file_name
     writer(config, job, path, groundtruth / f"{job.stem}.parquet")
     return path
@@ -139,22 +147,41 @@ def _write_glove(config: SynthConfig, job: RecordingJob, path: Path, gt_path: Pa
     def ns(t: float) -> int:
         return t0_ns + int(round(t * 1e9))
 
-    metadata = {"task": job.task, "subject": f"s{job.subject:02d}", "demo": str(job.demo), "rig": "simulated-demonstrator"}
+    metadata = {
+        "task": job.task,
+        "subject": f"s{job.subject:02d}",
+        "demo": str(job.demo),
+        "rig": "simulated-demonstrator",
+    }
     with RecordingWriter(path, "glove_session", metadata) as w:
         # interleave streams in time order, as a live recorder would
         events = sorted(
-            [(t, 0, i) for i, t in enumerate(t_tax)] + [(t, 1, i) for i, t in enumerate(t_hand)] + [(t, 2, i) for i, t in enumerate(t_obj)]
+            [(t, 0, i) for i, t in enumerate(t_tax)]
+            + [(t, 1, i) for i, t in enumerate(t_hand)]
+            + [(t, 2, i) for i, t in enumerate(t_obj)]
         )
         for t, stream, i in events:
             stamp = ns(t)
             if stream == 0:
                 w.write("/glove/taxels", stamp, cdr.encode_tactile(stamp, "glove_right", raw[i]))
             elif stream == 1:
-                w.write("/glove/hand_joints", stamp, cdr.encode_joint_state(stamp, "glove_right", GLOVE_JOINT_NAMES, joints[i]))
+                w.write(
+                    "/glove/hand_joints",
+                    stamp,
+                    cdr.encode_joint_state(stamp, "glove_right", GLOVE_JOINT_NAMES, joints[i]),
+                )
                 w.write("/glove/keypoints", stamp, cdr.encode_pose_array(stamp, "world", keypoints[i]))
-                w.write("/glove/wrist_pose", stamp, cdr.encode_pose_stamped(stamp, "world", wrist_pos[i], hand_traj.wrist_quat[i]))
+                w.write(
+                    "/glove/wrist_pose",
+                    stamp,
+                    cdr.encode_pose_stamped(stamp, "world", wrist_pos[i], hand_traj.wrist_quat[i]),
+                )
             else:
-                w.write("/object/pose", stamp, cdr.encode_pose_stamped(stamp, scenes.get(job.task).object.name, obj_pos[i], obj.object_quat[i]))
+                w.write(
+                    "/object/pose",
+                    stamp,
+                    cdr.encode_pose_stamped(stamp, scenes.get(job.task).object.name, obj_pos[i], obj.object_quat[i]),
+                )
     start = min(t_tax[0], t_hand[0], t_obj[0])
     _write_groundtruth(gt_path, t_tax - start, HUMAN_REGIONS, _region_forces(force), {"hand_scale": hand.scale})
     motion = pa.table(
@@ -196,7 +223,11 @@ def _write_replay(config: SynthConfig, job: RecordingJob, path: Path, gt_path: P
 
     def robot_force(t: np.ndarray) -> np.ndarray:
         return np.stack(
-            [kept[k] * scale[k] * np.interp(t_ref(t - lag[k]), t_ref_grid, human[:, c]) for k, c in enumerate(robot_cols)], 1
+            [
+                kept[k] * scale[k] * np.interp(t_ref(t - lag[k]), t_ref_grid, human[:, c])
+                for k, c in enumerate(robot_cols)
+            ],
+            1,
         )
 
     t_tt, t_fsr = _stamps(duration, 100.0, rng), _stamps(duration, 50.0, rng)
@@ -232,10 +263,16 @@ def _write_replay(config: SynthConfig, job: RecordingJob, path: Path, gt_path: P
             elif stream == 1:
                 w.write("/fsr/palm", s, cdr.encode_tactile(s, "fsr_palm", fsr_raw[i]))
             elif stream == 2:
-                w.write("/leap/joint_states", s, cdr.encode_joint_state(s, "leap", LEAP_JOINT_NAMES, pos[i], vel[i], effort[i]))
+                w.write(
+                    "/leap/joint_states",
+                    s,
+                    cdr.encode_joint_state(s, "leap", LEAP_JOINT_NAMES, pos[i], vel[i], effort[i]),
+                )
             else:
                 w.write("/leap/joint_targets", s, cdr.encode_joint_state(s, "leap", LEAP_JOINT_NAMES, targets[i]))
-                w.write("/replay/reference_time", s, cdr.encode_reference_time(s, "leap", float(t_ref(np.array([t]))[0])))
+                w.write(
+                    "/replay/reference_time", s, cdr.encode_reference_time(s, "leap", float(t_ref(np.array([t]))[0]))
+                )
     start = min(t_tt[0], t_fsr[0], t_js[0], t_tg[0])
     _write_groundtruth(gt_path, t_tt - start, ROBOT_REGIONS, tt_force, {"speed": speed, "delay": delay})
 

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from schemas.glove import FINGERTIP_TAXELS, FINGERS, PALM_TAXELS, PHALANX_TAXELS, TAXEL_REGION
+from schemas.glove import FINGERS, FINGERTIP_TAXELS, PALM_TAXELS, PHALANX_TAXELS, TAXEL_REGION
 
 # Segment lengths (m) of a mid-sized adult hand; scaled per subject.
 PHALANX_LENGTHS: dict[str, tuple[float, float, float]] = {

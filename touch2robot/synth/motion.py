@@ -76,7 +76,16 @@ class _Builder:
     from the current state to a target with minimum-jerk timing."""
 
     def __init__(self, wrist_pos, wrist_quat, joints, obj_pos, obj_quat) -> None:
-        self.rows: list[tuple] = [(0.0, np.asarray(wrist_pos, float), np.asarray(wrist_quat, float), np.asarray(joints, float), np.asarray(obj_pos, float), np.asarray(obj_quat, float))]
+        self.rows: list[tuple] = [
+            (
+                0.0,
+                np.asarray(wrist_pos, float),
+                np.asarray(wrist_quat, float),
+                np.asarray(joints, float),
+                np.asarray(obj_pos, float),
+                np.asarray(obj_quat, float),
+            )
+        ]
 
     @property
     def state(self) -> tuple:
@@ -136,7 +145,9 @@ class Scene:
         """Skin compression depth (m, >= 0) of world points (T, N, 3) against all surfaces."""
         local = geometry.inverse_transform_points(points, obj_pos, obj_quat)
         depth = -geometry.body_sdf(self.object_geoms, local)
-        on_table = (np.abs(points[..., 0]) < self.table_half_extent[0]) & (np.abs(points[..., 1]) < self.table_half_extent[1])
+        on_table = (np.abs(points[..., 0]) < self.table_half_extent[0]) & (
+            np.abs(points[..., 1]) < self.table_half_extent[1]
+        )
         depth = np.maximum(depth, np.where(on_table, -points[..., 2], 0.0))
         if self.static_geoms:
             depth = np.maximum(depth, -geometry.body_sdf(self.static_geoms, points))
@@ -174,8 +185,12 @@ def close_fingers(
             qs = np.repeat(q[None], len(s), 0)
             qs[:, cols] = q_open[cols] + s[:, None] * (q_close[cols] - q_open[cols])
             pts = hand.forward(qs).taxel_points
-            world = geometry.transform_points(pts, np.broadcast_to(wrist_pos, (len(s), 3)), np.broadcast_to(wrist_quat, (len(s), 4)))
-            pen = scene.penetration(world, np.broadcast_to(obj_pos, (len(s), 3)), np.broadcast_to(obj_quat, (len(s), 4)))
+            world = geometry.transform_points(
+                pts, np.broadcast_to(wrist_pos, (len(s), 3)), np.broadcast_to(wrist_quat, (len(s), 4))
+            )
+            pen = scene.penetration(
+                world, np.broadcast_to(obj_pos, (len(s), 3)), np.broadcast_to(obj_quat, (len(s), 4))
+            )
             return pen[:, _finger_taxels(f)].max(axis=1)
 
         d = max_depth(steps)

@@ -79,7 +79,9 @@ class AssistanceConfig(_Frozen):
     frequency_hz: float = Field(2.0, gt=0, description="natural frequency of the PD pull at gain 1 (mass-scaled)")
     damping_ratio: float = Field(1.0, gt=0)
     gravity_compensation: bool = True
-    threshold: float = Field(0.6, gt=0, le=1, description="task reward per step (fraction of its max) that triggers a decay")
+    threshold: float = Field(
+        0.6, gt=0, le=1, description="task reward per step (fraction of its max) that triggers a decay"
+    )
     decay: float = Field(0.8, gt=0, lt=1)
     min_gain: float = Field(0.05, gt=0)
     window_episodes: int = Field(50, ge=1, description="finished episodes averaged before each decision")
@@ -114,8 +116,12 @@ class TeacherConfig(_Frozen):
     # (0.25 rad, 4 cm, 0.3 rad) let local-profile teachers trade the object for contacts (Rotate:
     # every deterministic rollout lost the object at 7.7 of 9.4 s, success 0 after 240
     # iterations); these keep it (Rotate 0.88, Wipe 1.0 after 80 iterations).
-    action_scale: float = Field(0.15, gt=0, description="rad: joint target = kinematic reference + scale x clip(action, -1, 1)")
-    wrist_pos_scale_m: float = Field(0.02, ge=0, description="m: wrist position residual per unit action (0 = the kinematic wrist)")
+    action_scale: float = Field(
+        0.15, gt=0, description="rad: joint target = kinematic reference + scale x clip(action, -1, 1)"
+    )
+    wrist_pos_scale_m: float = Field(
+        0.02, ge=0, description="m: wrist position residual per unit action (0 = the kinematic wrist)"
+    )
     wrist_rot_scale_rad: float = Field(0.15, ge=0, description="rad: wrist rotation residual per unit action")
     sigma_pos: float = Field(0.02, gt=0, description="m, object position kernel")
     sigma_rot: float = Field(0.3, gt=0, description="rad, object orientation kernel")
@@ -124,7 +130,9 @@ class TeacherConfig(_Frozen):
     lost_pos_m: float = Field(0.06, gt=0, description="object (or drawer opening) error that ends an episode")
     lost_rot_rad: float = Field(1.2, gt=0, description="object orientation error that ends an episode")
     grace_steps: int = Field(5, ge=0, description="steps after reset before tracking can be lost")
-    contact_margin_m: float = Field(0.005, ge=0, description="ConTrack: hand segment within this of the surface = contact")
+    contact_margin_m: float = Field(
+        0.005, ge=0, description="ConTrack: hand segment within this of the surface = contact"
+    )
     rollouts_per_task: int = Field(30, ge=1, description="deterministic teacher rollouts per task and method")
     seed: int = 0
 

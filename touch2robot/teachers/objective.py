@@ -167,17 +167,27 @@ class DemoTracking:
         d = self.demo[ids]
         r = self.refs
         wrist = np.concatenate([r.wrist_pos[d, 0], r.wrist_quat[d, 0]], axis=1)
-        env.reset_pose(ids, r.joints[d, 0], wrist, np.concatenate([r.object_pos[d, 0], r.object_quat[d, 0]], axis=1), r.opening[d, 0])
+        env.reset_pose(
+            ids,
+            r.joints[d, 0],
+            wrist,
+            np.concatenate([r.object_pos[d, 0], r.object_quat[d, 0]], axis=1),
+            r.opening[d, 0],
+        )
         self.prev_action[ids] = 0.0
         self.task_return[ids] = 0.0
 
-    def command(self, env: BatchEnv, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
+    def command(
+        self, env: BatchEnv, actions: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
         """Reference-plus-residual joint targets and wrist pose, and (DexMachina) the assistance
         force on the object, all for the next frame."""
         a = np.clip(actions, -1.0, 1.0)
         targets = self._ref("joints", env, 1) + self.cfg.action_scale * a[:, JOINT_ACTIONS]
         wrist_pos = self._ref("wrist_pos", env, 1) + self.cfg.wrist_pos_scale_m * a[:, WRIST_POS_ACTIONS]
-        wrist_quat = quat_mul(self._ref("wrist_quat", env, 1), quat_from_rotvec(self.cfg.wrist_rot_scale_rad * a[:, WRIST_ROT_ACTIONS]))
+        wrist_quat = quat_mul(
+            self._ref("wrist_quat", env, 1), quat_from_rotvec(self.cfg.wrist_rot_scale_rad * a[:, WRIST_ROT_ACTIONS])
+        )
         force = self.assistance_force(env) if self.assist_gain > 0 else None
         return targets, wrist_pos, wrist_quat, force
 
@@ -242,7 +252,9 @@ class DemoTracking:
     def _tracking_errors(self, env: BatchEnv) -> tuple[np.ndarray, np.ndarray]:
         if env.scene.is_drawer:
             return np.abs(env.drawer_opening - self._ref("opening", env)), np.zeros(env.n)
-        return np.linalg.norm(env.object_pos - self._ref("object_pos", env), axis=1), quat_angle(env.object_quat, self._ref("object_quat", env))
+        return np.linalg.norm(env.object_pos - self._ref("object_pos", env), axis=1), quat_angle(
+            env.object_quat, self._ref("object_quat", env)
+        )
 
     def reward(self, env: BatchEnv, actions: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         w, cfg = self.w, self.cfg
@@ -250,7 +262,9 @@ class DemoTracking:
         terms: dict[str, np.ndarray] = {}
         terms["object_pos"] = w.object_pos * np.exp(-pos_err / cfg.sigma_pos)
         terms["object_rot"] = (0.0 if env.scene.is_drawer else w.object_rot) * np.exp(-rot_err / cfg.sigma_rot)
-        terms["imitation"] = w.imitation * np.exp(-np.sum((env.hand_qpos - self._ref("joints", env)) ** 2, axis=1) / cfg.sigma_joint)
+        terms["imitation"] = w.imitation * np.exp(
+            -np.sum((env.hand_qpos - self._ref("joints", env)) ** 2, axis=1) / cfg.sigma_joint
+        )
         if w.tactile:
             terms["tactile"] = w.tactile * step_f1(env.region_contact, self._ref("preference", env))
         if w.contact:

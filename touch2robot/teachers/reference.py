@@ -108,7 +108,9 @@ SEGMENT_RADIUS_M = {"T": 0.008, "P": 0.012}
 SEGMENT_SAMPLES = 5
 
 
-def geometric_contacts(task: str, keypoints: np.ndarray, object_pos: np.ndarray, object_quat: np.ndarray, margin_m: float = 0.005) -> tuple[np.ndarray, np.ndarray]:
+def geometric_contacts(
+    task: str, keypoints: np.ndarray, object_pos: np.ndarray, object_quat: np.ndarray, margin_m: float = 0.005
+) -> tuple[np.ndarray, np.ndarray]:
     """ConTrack's contact references from geometry alone: per frame and region, whether the human
     hand segment of that region lies inside or within ``margin_m`` of the object surface, and the
     closest object-surface point to it in the object frame (NaN where no contact).
@@ -158,7 +160,9 @@ def _project_to_surface(geoms, p: np.ndarray, eps: float = 1e-4, iterations: int
     return p
 
 
-def load_reference(lake: Path, recording: dict, control_hz: float = 20.0, contact_margin_m: float = 0.005) -> DemoReference:
+def load_reference(
+    lake: Path, recording: dict, control_hz: float = 20.0, contact_margin_m: float = 0.005
+) -> DemoReference:
     """One ingested glove session as a teacher reference on the control grid (``control_hz``),
     from its first to its last frame that every stream covers. Frames whose retargeting failed
     hold the previous solution (the retargeter's own rule)."""
@@ -185,7 +189,11 @@ def load_reference(lake: Path, recording: dict, control_hz: float = 20.0, contac
     wrist_pos, wrist_quat = _pose(ret)
     opos, oquat = _pose(obj)
     object_pos, object_quat = _interp(t, t_obj, opos), _interp_quat(t, t_obj, oquat)
-    for name, values in (("retargeted.position", joints), ("object_pose", object_pos), ("object_pose quaternion", object_quat)):
+    for name, values in (
+        ("retargeted.position", joints),
+        ("object_pose", object_pos),
+        ("object_pose quaternion", object_quat),
+    ):
         if not np.isfinite(values).all():
             raise ReferenceError(f"recording {rid}: non-finite values in {name}")
 
@@ -229,4 +237,3 @@ def world_points(ref: DemoReference, frames: np.ndarray, object_pos: np.ndarray,
     local = ref.geo_point[frames]  # (N, 8, 3)
     rot = quat_to_mat(object_quat)  # (N, 3, 3)
     return np.einsum("nij,nrj->nri", rot, local) + object_pos[:, None, :]
-

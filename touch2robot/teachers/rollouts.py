@@ -16,8 +16,8 @@ import pyarrow as pa
 
 from schemas.tables import ROBOT_REGIONS, SCHEMAS
 from touch2robot.contacts import long_rows
-from touch2robot.sim.env import BatchEnv
 from touch2robot.metrics import contact_scores
+from touch2robot.sim.env import BatchEnv
 from touch2robot.teachers.objective import NUM_ACTIONS, DemoTracking, References
 
 Policy = Callable[[dict[str, np.ndarray]], np.ndarray]
@@ -33,7 +33,9 @@ def _fixed(values: np.ndarray, dtype: pa.DataType) -> pa.FixedSizeListArray:
     return pa.FixedSizeListArray.from_arrays(pa.array(values.reshape(-1), dtype), values.shape[1])
 
 
-def record(env: BatchEnv, objective: DemoTracking, policy: Policy, method: str, origin: str, seed: int = 0) -> tuple[pa.Table, pa.Table]:
+def record(
+    env: BatchEnv, objective: DemoTracking, policy: Policy, method: str, origin: str, seed: int = 0
+) -> tuple[pa.Table, pa.Table]:
     """Run one rollout per copy of ``env`` and return (rollouts rows, sim contact rows)."""
     refs = objective.refs
     n = env.n
@@ -63,7 +65,9 @@ def record(env: BatchEnv, objective: DemoTracking, policy: Policy, method: str, 
                 "joint_target": np.clip(targets, env.ctrl_low, env.ctrl_high),
                 "reference_joints": refs.joints[objective.demo, frame],
                 "wrist_state": env.wrist_pose.copy(),
-                "wrist_pose": np.concatenate([wrist_pos, wrist_quat / np.linalg.norm(wrist_quat, axis=1, keepdims=True)], axis=1),
+                "wrist_pose": np.concatenate(
+                    [wrist_pos, wrist_quat / np.linalg.norm(wrist_quat, axis=1, keepdims=True)], axis=1
+                ),
                 "object_pose": np.concatenate([env.object_pos, env.object_quat], axis=1),
                 "drawer_opening": env.drawer_opening.copy(),
                 "region_force": env.region_force.copy(),
@@ -99,7 +103,9 @@ def rollout_id(origin: str, method: str, task: str, index: int) -> str:
     return f"{origin}-{method}-{task}-{index:03d}"
 
 
-def _tables(steps: list[dict[str, np.ndarray]], objective: DemoTracking, method: str, origin: str, dt: float, task: str) -> tuple[pa.Table, pa.Table]:
+def _tables(
+    steps: list[dict[str, np.ndarray]], objective: DemoTracking, method: str, origin: str, dt: float, task: str
+) -> tuple[pa.Table, pa.Table]:
     refs = objective.refs
     n = len(steps[0]["active"])
     rollout_tables, contact_tables = [], []
@@ -139,8 +145,17 @@ def _tables(steps: list[dict[str, np.ndarray]], objective: DemoTracking, method:
         )
         contact_tables.append(
             long_rows(
-                source="sim", method=method, task=task, subject=refs.subjects[d], sequence_id=rid, reference_id=refs.ids[d],
-                t=t, t_ref=get("t_ref"), regions=ROBOT_REGIONS, contact=get("region_contact"), value=get("region_force"),
+                source="sim",
+                method=method,
+                task=task,
+                subject=refs.subjects[d],
+                sequence_id=rid,
+                reference_id=refs.ids[d],
+                t=t,
+                t_ref=get("t_ref"),
+                regions=ROBOT_REGIONS,
+                contact=get("region_contact"),
+                value=get("region_force"),
             )  # fmt: skip
         )
     rollouts = pa.concat_tables(rollout_tables).cast(SCHEMAS["rollouts"])
@@ -154,7 +169,9 @@ def summary(rollouts: pa.Table, refs: References, threshold_n: float) -> dict[st
     ids = rollouts["rollout_id"].to_numpy(zero_copy_only=False)
     last = np.r_[ids[1:] != ids[:-1], True]
     demo = np.array([refs.ids.index(r) for r in rollouts["reference_id"].to_pylist()])
-    frame = np.array([np.searchsorted(refs.t_ref[d, : refs.length[d]], t) for d, t in zip(demo, rollouts["t_ref"].to_numpy())])
+    frame = np.array(
+        [np.searchsorted(refs.t_ref[d, : refs.length[d]], t) for d, t in zip(demo, rollouts["t_ref"].to_numpy())]
+    )
     preference = refs.preference[demo, np.minimum(frame, refs.length[demo] - 1)]
     force = rollouts["region_force"].combine_chunks().flatten().to_numpy().reshape(-1, 8)
     scores = contact_scores(preference, force > threshold_n)

@@ -29,7 +29,12 @@ CHECKPOINT = re.compile(r"model_(\d+)\.pt$")
 
 def runner_config(ppo: PPOConfig, logger: dict | None = None) -> dict:
     """rsl-rl 5.x's train_cfg for PPO with MLP actor and critic (observation normalisation on)."""
-    mlp = {"class_name": "MLPModel", "hidden_dims": list(ppo.hidden_dims), "activation": ppo.activation, "obs_normalization": True}
+    mlp = {
+        "class_name": "MLPModel",
+        "hidden_dims": list(ppo.hidden_dims),
+        "activation": ppo.activation,
+        "obs_normalization": True,
+    }
     cfg = {
         "num_steps_per_env": ppo.num_steps_per_env,
         "save_interval": ppo.save_interval,
@@ -96,7 +101,9 @@ class MlflowLogWriter(LogWriter):
         self.flush()
 
 
-def make_teacher_env(task: str, refs: References, config: TeacherConfig, method: str, n_envs: int | None = None) -> RslVecEnv:
+def make_teacher_env(
+    task: str, refs: References, config: TeacherConfig, method: str, n_envs: int | None = None
+) -> RslVecEnv:
     """The batched env of one task driven by the teacher objective of ``method``."""
     env = BatchEnv(build_scene(task, config.sim), config.sim, n_envs or config.sim.n_envs)
     objective = DemoTracking(refs, config, method)

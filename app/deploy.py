@@ -1,12 +1,12 @@
 """Register the deployments of ``prefect.yaml`` with a Prefect server: the programmatic
 ``prefect deploy --all``, with the work pool chosen by the caller.
 
-Lives beside the flows, not in the ``touch2robot`` library, because the library stays
-free of Prefect imports (DESIGN.md) and because importing ``flows`` first configures the
-environment: the deploy talks to the same Prefect profile and API as the flows do.
+Lives in the app shell, not in the ``touch2robot`` library, because the library stays free
+of Prefect imports (DESIGN.md); it configures the environment as the flows do, so the deploy
+talks to the same Prefect profile and API.
 
     touch2robot deploy --pool touch2robot-local        # the CLI wraps deploy_all
-    python -m flows.deploy --pool touch2robot-docker   # same, without the CLI
+    python -m app.deploy --pool touch2robot-docker   # same, without the CLI
 
 ``prefect.yaml`` lists one entry per flow; ``definitions.work_pools`` names the pools
 (variant key -> pool). Deploying to a pool registers every entry on that pool, named
@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 from uuid import UUID
 
+import flows  # noqa: F401  # isort: skip  configures the environment before Prefect is imported
 import yaml
 from prefect import Flow, get_client
 from prefect.client.schemas.actions import WorkPoolCreate
@@ -69,10 +70,18 @@ def read_config(config: Path = PREFECT_YAML) -> tuple[dict[str, PoolSpec], list[
     data = yaml.safe_load(Path(config).read_text()) or {}
     pools = {}
     for variant, p in ((data.get("definitions") or {}).get("work_pools") or {}).items():
-        spec = PoolSpec(variant, p["name"], p.get("type", "process"), p.get("work_queue_name", "default"), dict(p.get("job_variables") or {}))
+        spec = PoolSpec(
+            variant,
+            p["name"],
+            p.get("type", "process"),
+            p.get("work_queue_name", "default"),
+            dict(p.get("job_variables") or {}),
+        )
         pools[spec.name] = spec
     deployments = [
-        DeploymentSpec(d["entrypoint"], d.get("description", ""), dict(d.get("parameters") or {}), tuple(d.get("tags") or ()))
+        DeploymentSpec(
+            d["entrypoint"], d.get("description", ""), dict(d.get("parameters") or {}), tuple(d.get("tags") or ())
+        )
         for d in data.get("deployments") or []
     ]
     return pools, deployments
@@ -90,7 +99,9 @@ def _ensure_pool(pool: PoolSpec) -> None:
         if worker_class is None:
             raise ValueError(f"work pool type {pool.type!r} has no worker installed here (process is built in)")
         client.create_work_pool(
-            WorkPoolCreate(name=pool.name, type=pool.type, base_job_template=worker_class.get_default_base_job_template())
+            WorkPoolCreate(
+                name=pool.name, type=pool.type, base_job_template=worker_class.get_default_base_job_template()
+            )
         )
         log.info("created work pool %s (%s)", pool.name, pool.type)
 
@@ -119,7 +130,9 @@ def deploy_all(
     if flows is not None:
         unknown = set(flows) - {s.flow for s in specs}
         if unknown:
-            raise ValueError(f"no deployment for flow(s) {sorted(unknown)} in {config}; known: {sorted(s.flow for s in specs)}")
+            raise ValueError(
+                f"no deployment for flow(s) {sorted(unknown)} in {config}; known: {sorted(s.flow for s in specs)}"
+            )
         specs = [s for s in specs if s.flow in flows]
     _ensure_pool(target)
     ids: dict[str, UUID] = {}
@@ -141,8 +154,10 @@ def deploy_all(
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    """``python -m flows.deploy``: the same as ``touch2robot deploy``."""
-    parser = argparse.ArgumentParser(prog="python -m flows.deploy", description="Register the deployments of prefect.yaml on a work pool.")
+    """``python -m app.deploy``: the same as ``touch2robot deploy``."""
+    parser = argparse.ArgumentParser(
+        prog="python -m app.deploy", description="Register the deployments of prefect.yaml on a work pool."
+    )
     parser.add_argument("--pool", default=DEFAULT_POOL, help=f"work pool (default {DEFAULT_POOL}; created if missing)")
     parser.add_argument("--flow", action="append", dest="flows", help="only this flow's deployment (repeatable)")
     parser.add_argument("--config", type=Path, default=PREFECT_YAML, help="the prefect.yaml to read")

@@ -1,6 +1,6 @@
 """The ``touch2robot`` command. Every command works on one data folder (``--data``,
 ``$TOUCH2ROBOT_DATA`` or ``./data``) and needs no server: a flow command runs a Prefect
-API of its own that ends with it (touch2robot/local_server.py), MLflow a SQLite file,
+API of its own that ends with it (app/local_server.py), MLflow a SQLite file,
 DuckDB in-process."""
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ ProfileOpt = Annotated[str, typer.Option("--profile", "-p", help="smoke | local 
 
 
 def _layout(data: Path | None):
-    from touch2robot.environment import configure
+    from app.environment import configure
     from touch2robot.settings import DataLayout
 
     return configure(DataLayout.from_env(data))
@@ -33,14 +33,14 @@ def _run_flow(entrypoint: str, **parameters: object) -> object:
     """Call the flow ``module:function`` with ``parameters`` against a Prefect API that
     ends with this command: the user's server when PREFECT_API_URL (environment or Prefect
     profile) names one, else a server of this process on the data folder's database
-    (touch2robot.local_server: unlike Prefect's temporary server, it cannot outlive a
+    (app.local_server: unlike Prefect's temporary server, it cannot outlive a
     killed run). The server starts first and comes up while Prefect and the flow's
     modules are imported. Call after ``_layout``: Prefect reads its settings once, when
     first imported."""
     import atexit
     import importlib
 
-    from touch2robot.local_server import PrefectApi, stop_on_termination
+    from app.local_server import PrefectApi, stop_on_termination
 
     module, function = entrypoint.split(":")
     with stop_on_termination():
@@ -111,7 +111,9 @@ def ingest(
     `ingest`, cached per file content): bad files are quarantined with a reason."""
     _check_profile(profile)
     layout = _layout(data)
-    result = _run_flow("flows.ingest:ingest", profile=profile, data=str(layout.root), folder=str(folder.resolve()) if folder else None)
+    result = _run_flow(
+        "flows.ingest:ingest", profile=profile, data=str(layout.root), folder=str(folder.resolve()) if folder else None
+    )
     console.print(result)
 
 
@@ -127,14 +129,20 @@ def retarget(profile: ProfileOpt = "smoke", data: DataOpt = None) -> None:
 def teachers(
     profile: ProfileOpt = "smoke",
     data: DataOpt = None,
-    task: Annotated[list[str] | None, typer.Option(help="task to train (repeatable; default the profile's teacher.tasks)")] = None,
-    method: Annotated[list[str] | None, typer.Option(help="touch2robot | contrack | dexmachina (repeatable; default all)")] = None,
+    task: Annotated[
+        list[str] | None, typer.Option(help="task to train (repeatable; default the profile's teacher.tasks)")
+    ] = None,
+    method: Annotated[
+        list[str] | None, typer.Option(help="touch2robot | contrack | dexmachina (repeatable; default all)")
+    ] = None,
 ) -> None:
     """Train PPO teachers per task x method, record their rollouts and the kinematic replays
     (flow `teachers`); a killed training resumes from its last checkpoint."""
     _check_profile(profile)
     layout = _layout(data)
-    for row in _run_flow("flows.teachers:teachers", profile=profile, data=str(layout.root), tasks=task or None, methods=method or None):
+    for row in _run_flow(
+        "flows.teachers:teachers", profile=profile, data=str(layout.root), tasks=task or None, methods=method or None
+    ):
         console.print(row)
 
 
@@ -142,7 +150,9 @@ def teachers(
 def student(
     profile: ProfileOpt = "smoke",
     data: DataOpt = None,
-    variant: Annotated[list[str] | None, typer.Option(help="full or an ablation of student.ablations (repeatable; default all)")] = None,
+    variant: Annotated[
+        list[str] | None, typer.Option(help="full or an ablation of student.ablations (repeatable; default all)")
+    ] = None,
 ) -> None:
     """Distil the unified student retargeter from the touch2robot teachers' rollouts (augmented
     dataset, full model and ablations), then reconstruct the held-out demonstrations (flow
@@ -150,7 +160,9 @@ def student(
     _check_profile(profile)
     layout = _layout(data)
     result = _run_flow("flows.student:student", profile=profile, data=str(layout.root), variants=variant or None)
-    table = Table("variant", "task", "joint error (rad)", "kinematic input (rad)", "contact F1", "predicted F1", "success")
+    table = Table(
+        "variant", "task", "joint error (rad)", "kinematic input (rad)", "contact F1", "predicted F1", "success"
+    )
     for r in result.get("heldout", []):
         table.add_row(r["variant"], r["task"], f"{r['joint_error_student']:.4f}", f"{r['joint_error_kinematic']:.4f}",
                       f"{r['contact_f1']:.3f}", f"{r['predicted_contact_f1']:.3f}", f"{r['success_rate']:.2f}")  # fmt: skip
@@ -161,28 +173,53 @@ def student(
 def evaluate(
     profile: ProfileOpt = "smoke",
     data: DataOpt = None,
-    ratings: Annotated[Path | None, typer.Option(help="user-study ratings CSV or folder (default <data>/recordings/user_study)")] = None,
+    ratings: Annotated[
+        Path | None, typer.Option(help="user-study ratings CSV or folder (default <data>/recordings/user_study)")
+    ] = None,
 ) -> None:
     """Score every contact source against the human preference (precision/recall/F1/FPR,
     onset error) and the user study; tables contact_metrics, onset_errors, user_study."""
     _check_profile(profile)
     layout = _layout(data)
-    console.print(_run_flow("flows.evaluate:evaluate", profile=profile, data=str(layout.root), ratings=str(ratings.resolve()) if ratings else None))
+    console.print(
+        _run_flow(
+            "flows.evaluate:evaluate",
+            profile=profile,
+            data=str(layout.root),
+            ratings=str(ratings.resolve()) if ratings else None,
+        )
+    )
 
 
 @app.command()
 def policy(
     profile: ProfileOpt = "smoke",
     data: DataOpt = None,
-    task: Annotated[list[str] | None, typer.Option(help="task (repeatable; default the profile's policy.tasks)")] = None,
-    method: Annotated[list[str] | None, typer.Option(help="data-collection method (repeatable; default the profile's policy.methods)")] = None,
+    task: Annotated[
+        list[str] | None, typer.Option(help="task (repeatable; default the profile's policy.tasks)")
+    ] = None,
+    method: Annotated[
+        list[str] | None, typer.Option(help="data-collection method (repeatable; default the profile's policy.methods)")
+    ] = None,
 ) -> None:
     """Robot demonstrations as LeRobot datasets, LeRobot's Diffusion Policy trained on them and
     its closed-loop success, per task x method with rollouts in the lake (table policy_eval)."""
     _check_profile(profile)
     layout = _layout(data)
-    rows = _run_flow("flows.policy:policy", profile=profile, data=str(layout.root), tasks=task or None, methods=method or None)
-    table = Table("task", "method", "origin", "success", "95% CI", "progress", "demonstrations replayed", "open-loop error (rad / mm)", "holding still")
+    rows = _run_flow(
+        "flows.policy:policy", profile=profile, data=str(layout.root), tasks=task or None, methods=method or None
+    )
+    table = Table(
+        "task",
+        "method",
+        "origin",
+        "success",
+        "95% CI",
+        "progress",
+        "demonstrations replayed",
+        "open-loop error (rad / mm)",
+        "holding still",
+    )
     for r in rows:
         table.add_row(r["task"], r["method"], r["origin"], f"{r['successes']}/{r['episodes']}", f"[{r['ci_low']:.2f}, {r['ci_high']:.2f}]", f"{r['mean_progress']:.2f}",
                       f"{r['replay_successes']}/{r['episodes']}",
@@ -194,7 +231,9 @@ def policy(
 def run(
     profile: ProfileOpt = "smoke",
     data: DataOpt = None,
-    synthesize: Annotated[bool, typer.Option("--synth/--no-synth", help="generate demonstrator recordings first")] = True,
+    synthesize: Annotated[
+        bool, typer.Option("--synth/--no-synth", help="generate demonstrator recordings first")
+    ] = True,
 ) -> None:
     """Run every stage that exists, as one Prefect flow (`pipeline`), on a profile."""
     _check_profile(profile)
@@ -205,7 +244,9 @@ def run(
 
 @app.command()
 def sql(
-    query: Annotated[str, typer.Argument(help='read-only SQL, e.g. "SELECT region, avg(contact::INT) FROM contacts GROUP BY ALL"')],
+    query: Annotated[
+        str, typer.Argument(help='read-only SQL, e.g. "SELECT region, avg(contact::INT) FROM contacts GROUP BY ALL"')
+    ],
     data: DataOpt = None,
     csv: Annotated[bool, typer.Option("--csv", help="print CSV instead of a table")] = False,
     limit: Annotated[int, typer.Option(help="rows to print in table mode")] = 50,
@@ -214,10 +255,11 @@ def sql(
     cannot be read or written). Tables: recordings, taxels, hand_joints, hand_keypoints,
     wrist_pose, object_pose, robot_joint_states, robot_joint_targets, twintac, fsr,
     time_map, contacts, thresholds (+ later stages' tables)."""
-    from touch2robot.catalog import QueryRefused, query as run_query
-    from touch2robot.settings import DataLayout
-
     import duckdb
+
+    from touch2robot.catalog import QueryRefused
+    from touch2robot.catalog import query as run_query
+    from touch2robot.settings import DataLayout
 
     try:
         result = run_query(DataLayout.from_env(data), query)
@@ -248,7 +290,7 @@ def ui(
     import signal
 
     layout = _layout(data)
-    from touch2robot.local_server import StopRequest, answers, spawn_owned, stop_group
+    from app.local_server import StopRequest, answers, spawn_owned, stop_group
     from touch2robot.tracking import local_uri, tracking_uri
 
     # name: (command, health URL, UI URL); a server the user points at is theirs to run
@@ -256,18 +298,51 @@ def ui(
     uri = tracking_uri(layout)
     if uri == local_uri(layout):
         # one web worker and no GenAI job runner (by default 4 workers and 8 job processes)
-        command = [sys.executable, "-m", "mlflow", "ui", "--backend-store-uri", uri, "--host", "127.0.0.1", "--port", str(port), "--workers", "1"]
+        command = [
+            sys.executable,
+            "-m",
+            "mlflow",
+            "ui",
+            "--backend-store-uri",
+            uri,
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(port),
+            "--workers",
+            "1",
+        ]
         servers["MLflow"] = (command, f"http://127.0.0.1:{port}/health", f"http://127.0.0.1:{port}")
     else:
         console.print(f"MLflow UI:  {uri} (MLFLOW_TRACKING_URI)")
     if os.environ.get("PREFECT_API_URL"):
         console.print(f"Prefect UI: the server of PREFECT_API_URL={os.environ['PREFECT_API_URL']}")
     else:
-        command = [sys.executable, "-m", "prefect", "server", "start", "--host", "127.0.0.1", "--port", str(prefect_port)]
-        servers["Prefect"] = (command, f"http://127.0.0.1:{prefect_port}/api/health", f"http://127.0.0.1:{prefect_port}")
-    env = {**os.environ, "MLFLOW_SERVER_ENABLE_JOB_EXECUTION": os.environ.get("MLFLOW_SERVER_ENABLE_JOB_EXECUTION", "false")}
+        command = [
+            sys.executable,
+            "-m",
+            "prefect",
+            "server",
+            "start",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(prefect_port),
+        ]
+        servers["Prefect"] = (
+            command,
+            f"http://127.0.0.1:{prefect_port}/api/health",
+            f"http://127.0.0.1:{prefect_port}",
+        )
+    env = {
+        **os.environ,
+        "MLFLOW_SERVER_ENABLE_JOB_EXECUTION": os.environ.get("MLFLOW_SERVER_ENABLE_JOB_EXECUTION", "false"),
+    }
     if not start:
-        shell_env = {"MLflow": "MLFLOW_SERVER_ENABLE_JOB_EXECUTION=false", "Prefect": f"PREFECT_HOME={env['PREFECT_HOME']}"}
+        shell_env = {
+            "MLflow": "MLFLOW_SERVER_ENABLE_JOB_EXECUTION=false",
+            "Prefect": f"PREFECT_HOME={env['PREFECT_HOME']}",
+        }
         for name, (command, _, _) in servers.items():
             console.print(f"{name} UI: {shell_env[name]} uv run {command[2]} " + " ".join(command[3:]), soft_wrap=True)
         console.print("(or `touch2robot ui --start` runs both)")
@@ -299,12 +374,17 @@ def ui(
 
 @app.command()
 def deploy(
-    pool: Annotated[str, typer.Option("--pool", help="work pool (created if missing): touch2robot-local, touch2robot-docker or your own")] = "touch2robot-local",
+    pool: Annotated[
+        str,
+        typer.Option(
+            "--pool", help="work pool (created if missing): touch2robot-local, touch2robot-docker or your own"
+        ),
+    ] = "touch2robot-local",
     flow: Annotated[list[str] | None, typer.Option("--flow", help="only this flow's deployment (repeatable)")] = None,
 ) -> None:
     """Register the deployments of prefect.yaml on a work pool of the Prefect server named by
     PREFECT_API_URL (see infra/README.md)."""
-    from flows.deploy import deploy_all
+    from app.deploy import deploy_all
 
     try:
         deployed = deploy_all(pool, flows=flow)
