@@ -15,8 +15,10 @@ from __future__ import annotations
 
 import random
 import re
+import tempfile
 import threading
 import time
+import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -169,6 +171,11 @@ def connect_read_only(layout: DataLayout) -> duckdb.DuckDBPyConnection:
         # lake with its glob metacharacters escaped, which is a second spelling where it has any
         lake_spellings = {layout.lake.as_posix() + "/", _glob_literal(layout.lake) + "/"}
         con.execute("SET allowed_directories = ?", [sorted(lake_spellings)])
+        # DuckDB allows its spill folder inside the sandbox; by default an in-memory database's
+        # is `.tmp` in the working directory, shared: this one is the connection's own (created
+        # only if a query spills, removed at close)
+        spill = Path(tempfile.gettempdir()) / f"touch2robot-sql-{uuid.uuid4().hex}"
+        con.execute("SET temp_directory = ?", [spill.as_posix()])
         con.execute("SET enable_external_access = false")
         con.execute("SET lock_configuration = true")
     except BaseException:
