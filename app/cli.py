@@ -283,6 +283,7 @@ def sql(
         if describe is not None:
             sql_view.print_description(console, catalog.describe(layout, describe))
             return
+        assert query is not None  # the one thing asked for, checked above
         result = catalog.query(layout, query, timeout_s=timeout or None)
     except catalog.QueryTimeout as e:
         console.print(f"[red]QueryTimeout:[/red] {e} (--timeout sets it)")

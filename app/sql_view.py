@@ -8,7 +8,6 @@ from __future__ import annotations
 import sys
 from typing import TYPE_CHECKING, Any
 
-import click
 from rich.console import Console
 from rich.measure import Measurement
 from rich.table import Table
@@ -27,7 +26,7 @@ class SqlCommand(TyperCommand):
     """The ``sql`` command, whose help lists every table of ``schemas.tables`` (imported only
     when the help is shown: pyarrow would slow every command's start)."""
 
-    def format_help(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+    def format_help(self, ctx, formatter) -> None:  # types as TyperCommand.format_help (typer vendors click)
         from schemas.tables import SCHEMAS
 
         listing = f"Tables: {', '.join(SCHEMAS)} (`--tables` says what each holds)."

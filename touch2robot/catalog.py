@@ -22,6 +22,7 @@ import uuid
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import duckdb
 import pyarrow as pa
@@ -136,14 +137,14 @@ def refresh(layout: DataLayout) -> list[str]:
 def _copy_catalog(con: duckdb.DuckDBPyConnection, catalog: Path) -> None:
     # the file is held only while copied; once detached it is no attached database, which
     # DuckDB would otherwise keep readable (as a file) inside the sandbox
-    con.execute("ATTACH ? AS catalog_file (READ_ONLY)", [str(catalog)])
+    con.execute("ATTACH ? AS catalog_file (READ_ONLY)", [str(catalog)])  # raises while a writer holds it
     try:
         con.execute("COPY FROM DATABASE catalog_file TO memory")
     finally:
         con.execute("DETACH catalog_file")
 
 
-def _scalar(con: duckdb.DuckDBPyConnection, sql: str, params: list | None = None) -> object:
+def _scalar(con: duckdb.DuckDBPyConnection, sql: str, params: list | None = None) -> Any:
     return con.execute(sql, params or []).fetchall()[0][0]
 
 
@@ -291,7 +292,7 @@ def tables(layout: DataLayout) -> pa.Table:
 @dataclass(frozen=True)
 class TableDescription:
     name: str
-    summary: str
+    summary: str | None  # None in a catalog written before tables had descriptions
     partition_keys: tuple[str, ...]
     columns: pa.Table  # column, type, description, partition_key
 
