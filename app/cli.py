@@ -15,6 +15,8 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
 
+from app.sql_view import SqlCommand
+
 app = typer.Typer(help=__doc__, no_args_is_help=True, pretty_exceptions_show_locals=False)
 console = Console()
 
@@ -242,39 +244,57 @@ def run(
     console.print(f"catalog: {layout.catalog}\nMLflow:  touch2robot ui --data {layout.root}")
 
 
-@app.command()
+@app.command(cls=SqlCommand)
 def sql(
     query: Annotated[
-        str, typer.Argument(help='read-only SQL, e.g. "SELECT region, avg(contact::INT) FROM contacts GROUP BY ALL"')
-    ],
+        str | None,
+        typer.Argument(help='read-only SQL, e.g. "SELECT region, avg(contact::INT) FROM contacts GROUP BY ALL"'),
+    ] = None,
     data: DataOpt = None,
-    csv: Annotated[bool, typer.Option("--csv", help="print CSV instead of a table")] = False,
+    csv: Annotated[bool, typer.Option("--csv", help="print CSV (full precision) instead of a table")] = False,
     limit: Annotated[int, typer.Option(help="rows to print in table mode")] = 50,
+    vertical: Annotated[
+        bool,
+        typer.Option("--vertical", "-x", help="one field per line (default when a row is wider than the terminal)"),
+    ] = False,
+    timeout: Annotated[float, typer.Option(help="seconds before the query is interrupted (0: no limit)")] = 60.0,
+    tables: Annotated[bool, typer.Option("--tables", help="list every table: description and row count")] = False,
+    describe: Annotated[
+        str | None, typer.Option("--describe", metavar="TABLE", help="a table's columns, types, descriptions")
+    ] = None,
 ) -> None:
-    """Query the catalog with SQL (read-only: SELECT/EXPLAIN only; files outside the lake
-    cannot be read or written). Tables: recordings, taxels, hand_joints, hand_keypoints,
-    wrist_pose, object_pose, robot_joint_states, robot_joint_targets, twintac, fsr,
-    time_map, contacts, thresholds (+ later stages' tables)."""
+    """Query the catalog with SQL, read-only: SELECT (DESCRIBE, SUMMARIZE, ...) and EXPLAIN of
+    a SELECT; no file outside the lake can be read, none written. Column descriptions are also
+    in duckdb_columns() for any DuckDB client."""
     import duckdb
 
-    from touch2robot.catalog import QueryRefused
-    from touch2robot.catalog import query as run_query
+    from app import sql_view
+    from touch2robot import catalog
     from touch2robot.settings import DataLayout
 
+    if sum((query is not None, tables, describe is not None)) != 1:
+        console.print("[red]give one of: a QUERY, --tables or --describe TABLE[/red]")
+        raise typer.Exit(2)
+    layout = DataLayout.from_env(data)
     try:
-        result = run_query(DataLayout.from_env(data), query)
-    except (QueryRefused, FileNotFoundError, duckdb.Error) as e:
+        if tables:
+            sql_view.print_tables(console, catalog.tables(layout))
+            return
+        if describe is not None:
+            sql_view.print_description(console, catalog.describe(layout, describe))
+            return
+        assert query is not None  # the one thing asked for, checked above
+        result = catalog.query(layout, query, timeout_s=timeout or None)
+    except catalog.QueryTimeout as e:
+        console.print(f"[red]QueryTimeout:[/red] {e} (--timeout sets it)")
+        raise typer.Exit(1) from None
+    except (ValueError, FileNotFoundError, duckdb.Error) as e:  # QueryRefused is a ValueError
         console.print(f"[red]{type(e).__name__}:[/red] {e}")
         raise typer.Exit(1) from None
     if csv:
-        result.to_pandas().to_csv(sys.stdout, index=False)
-        return
-    table = Table(*result.column_names)
-    for row in result.slice(0, limit).to_pylist():
-        table.add_row(*(str(v) for v in row.values()))
-    console.print(table)
-    if result.num_rows > limit:
-        console.print(f"... {result.num_rows - limit} more rows (use --csv or --limit)")
+        sql_view.write_csv(result)
+    else:
+        sql_view.print_result(console, result, limit, vertical)
 
 
 @app.command()
