@@ -5,6 +5,7 @@ MuJoCo's headless renderer, all under the data folder. Values the user already s
 from __future__ import annotations
 
 import os
+import tempfile
 
 from touch2robot.settings import DataLayout
 
@@ -25,4 +26,8 @@ def configure(layout: DataLayout | None = None) -> DataLayout:
     for key, value in defaults.items():
         os.environ.setdefault(key, value)
     layout.root.mkdir(parents=True, exist_ok=True)
+    if "TMPDIR" not in os.environ:  # a user's own choice stands
+        layout.tmp.mkdir(exist_ok=True)
+        os.environ["TMPDIR"] = str(layout.tmp)
+        tempfile.tempdir = None  # recomputed from TMPDIR on next use
     return layout

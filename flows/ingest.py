@@ -18,6 +18,7 @@ from tasks.ingest import (
 from tasks.runners import ProfileTaskRunner
 from touch2robot.config import load_profile
 from touch2robot.ingest import link_replays, recording_rows
+from touch2robot.ingest.scan import find_recordings
 from touch2robot.settings import DataLayout
 
 
@@ -28,7 +29,10 @@ def ingest(profile: str = "smoke", data: str | None = None, folder: str | None =
     layout = DataLayout.from_env(data)
     config = load_profile(profile).contacts
     lake = str(layout.lake)
-    paths = sorted(str(p) for p in Path(folder or layout.recordings).rglob("*.mcap"))
+    scan = find_recordings(Path(folder or layout.recordings))
+    for entry, why in scan.skipped:
+        get_run_logger().warning("skipped %s: %s", entry, why)
+    paths = [str(p) for p in scan.recordings]
     digests = [file_digest(p) for p in paths]
     results = [f.result() for f in stored(ingest_recording, layout.results).map(paths, digests, unmapped(lake))]
     current = {r["path"]: r["recording_id"] for r in results if r["status"] != "quarantined"}
@@ -49,4 +53,4 @@ def ingest(profile: str = "smoke", data: str | None = None, folder: str | None =
     report = report_ingest(str(layout.root), profile, results, summaries)
     counts = {s: sum(r["status"] == s for r in results) for s in ("ingested", "unchanged", "quarantined")}
     print(f"ingest: {counts} -> {layout.catalog}")
-    return {**counts, "files": len(results), "report": report}
+    return {**counts, "skipped": len(scan.skipped), "files": len(results), "report": report}

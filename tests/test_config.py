@@ -30,6 +30,13 @@ def test_paper_profile_is_the_code_defaults() -> None:
         ("- a\n- b\n", "expected a mapping"),
         ("training_runner:\n  kind: threads\n", "training_runner.kind 'threads'"),
         ("training_runner:\n  kind: dask\n  threads_per_worker: 2\n", "training_runner.threads_per_worker"),
+        ("", "the profile is empty"),
+        ("# only a comment\n", "the profile is empty"),
+        ("teacher:\n  sim:\n    n_envs: true\n", "teacher.sim.n_envs: expected a number, got True"),
+        ("teacher:\n  ppo:\n    learning_rate: false\n", "teacher.ppo.learning_rate: expected a number"),
+        ("teacher:\n  ppo:\n    hidden_dims: [64, true]\n", "teacher.ppo.hidden_dims.1: expected a number"),
+        ("synth:\n  subjects: 2\n  subjects: 3\n", "duplicate key 'subjects' (first at line 2)"),
+        ("policy:\n  image_size: 8\n", "policy.image_size"),
     ],
 )
 def test_bad_profile_names_file_and_field(tmp_path: Path, text: str, message: str) -> None:

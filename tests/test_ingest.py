@@ -159,13 +159,13 @@ def test_joint_order_follows_the_contract(tmp_path: Path) -> None:
         for i in range(3):
             s = 10**9 + i * 10**7
             w.write("/glove/taxels", s, cdr.encode_tactile(s, "g", np.zeros(256)))
-            w.write("/glove/hand_joints", s, cdr.encode_joint_state(s, "g", names, np.arange(20.0)))
+            w.write("/glove/hand_joints", s, cdr.encode_joint_state(s, "g", names, np.arange(20.0) / 16))
             w.write("/glove/keypoints", s, cdr.encode_pose_array(s, "world", np.zeros((21, 3))))
             w.write("/glove/wrist_pose", s, cdr.encode_pose_stamped(s, "world", np.zeros(3), np.array([1.0, 0, 0, 0])))
             w.write("/object/pose", s, cdr.encode_pose_stamped(s, "box", np.zeros(3), np.array([1.0, 0, 0, 0])))
     result = ingest_file(path, tmp_path / "lake")
     joints = pq.read_table(tmp_path / "lake" / "hand_joints" / f"{result.recording_id}.parquet")
-    np.testing.assert_array_equal(joints["position"][0].as_py(), np.arange(20.0)[::-1])
+    np.testing.assert_array_equal(joints["position"][0].as_py(), (np.arange(20.0) / 16)[::-1])
 
 
 def test_replays_link_to_calibration_and_reference(smoke_data: Path, tmp_path: Path) -> None:

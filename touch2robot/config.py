@@ -4,6 +4,8 @@ under ``touch2robot/profiles/`` only override sizes. Unknown keys are errors."""
 
 from __future__ import annotations
 
+import types
+import typing
 from importlib import resources
 from pathlib import Path
 
@@ -85,13 +87,64 @@ def load_profile(name_or_path: str | Path) -> Profile:
             f"unknown profile {name_or_path!r}: use one of {', '.join(BUILTIN_PROFILES)} or a YAML file path"
         )
     try:
-        data = yaml.safe_load(text) or {}
+        data = yaml.load(text, Loader=_UniqueKeyLoader)
     except yaml.YAMLError as e:
         raise ProfileError(f"{origin}: not valid YAML ({e})") from None
+    if data is None:
+        # an empty file would silently run every paper default (1500 PPO iterations per teacher)
+        raise ProfileError(f"{origin}: the profile is empty; set at least its name (see the built-in profiles)")
     if not isinstance(data, dict):
         raise ProfileError(f"{origin}: expected a mapping of stage sections, got {type(data).__name__}")
+    _refuse_bools_as_numbers(Profile, data, origin, ())
     try:
         return Profile.model_validate(_merged(Profile().model_dump(), data))
     except ValidationError as e:
         fields = "; ".join(f"{'.'.join(map(str, err['loc']))}: {err['msg']}" for err in e.errors())
         raise ProfileError(f"{origin}: {fields}") from None
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """YAML's safe loader, except that a key given twice in one mapping is an error (plain YAML keeps the
+    last, so a profile could set a value that never takes effect)."""
+
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict:
+        seen: dict[object, yaml.Mark] = {}
+        for key_node, _ in node.value:
+            key = self.construct_object(key_node, deep=deep)
+            if key in seen:
+                raise yaml.constructor.ConstructorError(
+                    None, None, f"duplicate key {key!r} (first at line {seen[key].line + 1})", key_node.start_mark
+                )
+            seen[key] = key_node.start_mark
+        return super().construct_mapping(node, deep=deep)
+
+
+def _leaf_types(annotation: object) -> set[object]:
+    if typing.get_origin(annotation) in (typing.Union, types.UnionType):
+        return set().union(*(_leaf_types(a) for a in typing.get_args(annotation)))
+    return {typing.get_origin(annotation) or annotation}
+
+
+def _refuse_bools_as_numbers(model: type[BaseModel], data: dict, origin: str, loc: tuple[str, ...]) -> None:
+    """pydantic reads ``true`` as 1 where a number belongs (``n_envs: true`` would run one env): refuse it,
+    naming the field."""
+    for key, value in data.items():
+        field = model.model_fields.get(str(key))
+        if field is not None:
+            _check_value(field.annotation, value, origin, (*loc, str(key)))
+
+
+def _check_value(annotation: object, value: object, origin: str, loc: tuple[str, ...]) -> None:
+    leaves = _leaf_types(annotation)
+    if isinstance(value, bool) and bool not in leaves and leaves & {int, float}:
+        raise ProfileError(f"{origin}: {'.'.join(loc)}: expected a number, got {value!r}")
+    args = [a for a in typing.get_args(annotation) if a is not type(None)]
+    for leaf in leaves:
+        if isinstance(leaf, type) and issubclass(leaf, BaseModel) and isinstance(value, dict):
+            _refuse_bools_as_numbers(leaf, value, origin, loc)
+    if typing.get_origin(annotation) is dict and isinstance(value, dict) and len(args) == 2:
+        for key, item in value.items():
+            _check_value(args[1], item, origin, (*loc, str(key)))
+    if typing.get_origin(annotation) in (list, tuple) and isinstance(value, list) and args:
+        for i, item in enumerate(value):
+            _check_value(args[0], item, origin, (*loc, str(i)))

@@ -88,6 +88,12 @@ class DataLayout:
         return self.root / "policies"
 
     @property
+    def tmp(self) -> Path:
+        """Temporary files of the stages (MLflow's model staging, plots): inside the data folder, so a
+        killed run leaves nothing in the system's /tmp."""
+        return self.root / "tmp"
+
+    @property
     def reports(self) -> Path:
         return self.root / "reports"
 

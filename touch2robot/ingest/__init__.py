@@ -72,8 +72,11 @@ def ingest_file(path: Path, lake: Path) -> IngestResult:
     try:
         rec = read_recording(path)
     except RecordingError as e:
-        data = path.read_bytes() if path.is_file() else b""
-        rid = content_id(data)
+        try:
+            data = path.read_bytes()
+            rid = content_id(data)
+        except OSError:  # unreadable: its own quarantine row, keyed by where it is
+            data, rid = b"", content_id(f"unreadable:{path}".encode())
         lake_io.remove_id(lake, rid)  # a bad file never leaves rows behind
         lake_io.write_rows(lake, "recordings", rid, _row(path, rid, len(data), "quarantined", e.reason, None))
         return IngestResult(rid, str(path), "quarantined", e.reason, "", 0)
@@ -109,7 +112,8 @@ def superseded_ids(lake: Path, current: dict[str, str]) -> list[str]:
 
 @dataclass(frozen=True)
 class ReplayLink:
-    """A replay with the calibration and glove session it names (by file name)."""
+    """A replay with the calibration and glove session it names: by file name, in the replay's own folder
+    (two sessions' folders may hold files of the same name)."""
 
     replay: dict
     calibration_id: str
@@ -122,17 +126,18 @@ def link_replays(rows: list[dict]) -> tuple[list[dict], list[ReplayLink], list[s
     calibration is missing is left out with a problem line (its reference may be absent:
     then its contacts have no reference_id)."""
     ok = [r for r in rows if r["status"] == "ingested"]
-    by_name = {r["file_name"]: r for r in ok}
+    by_place = {(str(Path(r["path"]).parent), r["file_name"]): r for r in ok}
     gloves = [r for r in ok if r["kind"] == "glove_session"]
     links, problems = [], []
     for r in ok:
         if r["kind"] != "robot_replay":
             continue
-        calib = by_name.get(r["calibration_recording"])
+        folder = str(Path(r["path"]).parent)
+        calib = by_place.get((folder, r["calibration_recording"]))
         if calib is None or calib["kind"] != "robot_calibration":
             problems.append(
                 f"{r['file_name']}: calibration {r['calibration_recording']!r} is not ingested; no real contacts"
             )
             continue
-        links.append(ReplayLink(r, calib["recording_id"], by_name.get(r["reference_recording"])))
+        links.append(ReplayLink(r, calib["recording_id"], by_place.get((folder, r["reference_recording"]))))
     return gloves, links, problems

@@ -19,7 +19,10 @@ from mcap.exceptions import McapError
 from mcap.records import Channel, DataEnd, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
-from schemas.messages import MESSAGE_ENCODING, METADATA_KEYS, METADATA_NAME, TOPICS_BY_KIND, Topic
+from schemas import plausibility as plaus
+from schemas.messages import MESSAGE_ENCODING, METADATA_KEYS, METADATA_NAME, SCHEMA_VERSION, TOPICS_BY_KIND, Topic
+from schemas.tables import TASKS
+from schemas.vocabulary import Method
 from touch2robot.recording.cdr import Batch, CdrError, decode_batch
 
 
@@ -58,7 +61,10 @@ def content_id(data: bytes) -> str:
 def read_recording(path: Path) -> DecodedRecording:
     """Read, check and decode one MCAP recording, or raise RecordingError."""
     path = Path(path)
-    data = path.read_bytes()
+    try:
+        data = path.read_bytes()
+    except OSError as e:
+        raise RecordingError(path, f"cannot read the file: {e.strerror}") from None
     schemas: dict[int, Schema] = {}
     channels: dict[int, Channel] = {}
     messages: dict[int, list[bytes]] = {}
@@ -94,6 +100,7 @@ def read_recording(path: Path) -> DecodedRecording:
     missing_keys = [k for k in METADATA_KEYS[kind] if not metadata.get(k)]
     if missing_keys:
         raise RecordingError(path, f"metadata lacks {', '.join(missing_keys)} for a {kind} recording")
+    _check_metadata(path, kind, metadata)
 
     by_topic = {c.topic: c for c in channels.values()}
     missing = [t.name for t in TOPICS_BY_KIND[kind] if t.name not in by_topic or not messages.get(by_topic[t.name].id)]
@@ -106,6 +113,7 @@ def read_recording(path: Path) -> DecodedRecording:
         decoded[topic.name] = _decode_topic(path, topic, channel, schemas.get(channel.schema_id), messages[channel.id])
     start = min(int(b.stamp_ns[0]) for b in decoded.values())
     end = max(int(b.stamp_ns[-1]) for b in decoded.values())
+    _check_span(path, decoded, start, end)
     return DecodedRecording(
         path=path,
         recording_id=content_id(data),
@@ -153,7 +161,87 @@ def _decode_topic(path: Path, topic: Topic, channel: Channel, schema: Schema | N
             raise RecordingError(
                 path, f"{where}: non-finite value ({values[i, j]}) in field {name!r} at message {i}, index {j}"
             )
+        _check_plausible(path, topic, name, values)
     return batch
+
+
+def _check_metadata(path: Path, kind: str, metadata: dict[str, str]) -> None:
+    """Metadata values name tasks and methods and end up in tables and file names: each must be one the
+    contract knows, or a short plain name."""
+
+    def refuse(key: str, expected: str) -> None:
+        shown = metadata[key] if len(metadata[key]) <= 80 else metadata[key][:80] + "..."
+        raise RecordingError(path, f"metadata {key!r} is {shown!r}; expected {expected}")
+
+    if metadata.get("schema_version") != SCHEMA_VERSION:
+        refuse("schema_version", repr(SCHEMA_VERSION))
+    if "task" in METADATA_KEYS[kind] and metadata["task"] not in TASKS:
+        refuse("task", f"one of {', '.join(TASKS)}")
+    if "subject" in METADATA_KEYS[kind] and not plaus.NAME_PATTERN.fullmatch(metadata["subject"]):
+        refuse("subject", "a plain name (letters, digits, '_', '.', '-'; at most 64)")
+    if "method" in METADATA_KEYS[kind] and metadata["method"] not in set(Method):
+        refuse("method", f"one of {', '.join(Method)}")
+    for key in ("reference_recording", "calibration_recording"):
+        if key in METADATA_KEYS[kind] and not plaus.FILE_NAME_PATTERN.fullmatch(metadata[key]):
+            refuse(key, "the plain file name of a recording in the same folder")
+
+
+def _check_plausible(path: Path, topic: Topic, name: str, values: np.ndarray) -> None:
+    """Values a sensor cannot physically report (schemas/plausibility.py says why each bound)."""
+    where = f"topic {topic.name}, field {name!r}"
+    if name in plaus.POSE_FIELDS:
+        poses = values.reshape(len(values), -1, 7)
+        _check_bounds(path, where, poses[..., :3].reshape(len(values), -1), plaus.POSITION)
+        if topic.name in plaus.POSITION_ONLY_TOPICS:
+            return
+        with np.errstate(over="ignore"):  # a huge component is reported below, not warned about
+            norm = np.linalg.norm(poses[..., 3:], axis=-1)
+        bad = np.abs(norm - 1.0) > plaus.QUATERNION_TOLERANCE
+        if bad.any():
+            i, j = (int(v[0]) for v in np.nonzero(bad))
+            raise RecordingError(
+                path,
+                f"{where}: orientation {poses[i, j, 3:].tolist()} at message {i} is not a unit quaternion "
+                f"(norm {norm[i, j]:.6g}, tolerance {plaus.QUATERNION_TOLERANCE})",
+            )
+        return
+    bounds = plaus.FIELD_BOUNDS.get((topic.msg_type, name))
+    if bounds is not None:
+        _check_bounds(path, where, values, bounds)
+
+
+def _check_bounds(path: Path, where: str, values: np.ndarray, bounds: plaus.Bounds) -> None:
+    bad = (values < bounds.low) | (values > bounds.high)
+    if bad.any():
+        i, j = (int(v[0]) for v in np.nonzero(bad))
+        raise RecordingError(
+            path,
+            f"{where}: implausible value {values[i, j]:.6g} at message {i}, index {j} "
+            f"(expected {bounds.low:g}..{bounds.high:g} {bounds.what})",
+        )
+
+
+def _check_span(path: Path, decoded: dict[str, Batch], start: int, end: int) -> None:
+    """Every stream's stamps lie inside one plausible recording span (a clock jump shows as a stream far
+    from the others, or as a span of years)."""
+    for topic, batch in decoded.items():
+        if batch.stamp_ns[0] < 0:
+            raise RecordingError(
+                path, f"topic {topic}: negative timestamp {batch.stamp_ns[0] / 1e9:.9g} s at message 0"
+            )
+        late = (int(batch.stamp_ns[0]) - start) / 1e9
+        if late > plaus.MAX_STREAM_START_SPREAD_S:
+            raise RecordingError(
+                path,
+                f"topic {topic}: first message at {late:.6g} s after the recording's first "
+                f"(at most {plaus.MAX_STREAM_START_SPREAD_S:g} s: the recorder starts every stream together)",
+            )
+    if (end - start) / 1e9 > plaus.MAX_RECORDING_S:
+        raise RecordingError(
+            path,
+            f"recording spans {(end - start) / 1e9:.6g} s (at most {plaus.MAX_RECORDING_S:g} s; "
+            "a stream's clock jumped)",
+        )
 
 
 def _expected_width(topic: Topic, name: str) -> int | None:

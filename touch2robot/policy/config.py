@@ -35,7 +35,8 @@ class PolicyConfig(BaseModel):
         "every compared method of the task has: datasets that differ only in how each method turned the same human "
         "demonstrations into robot ones; false = every rollout of each method's file",
     )
-    image_size: int = Field(224, ge=8, description="square RGB image side (px) of both camera views")
+    # ResNet-18 (BatchNorm) needs feature maps larger than 1x1: below about 40 px training fails
+    image_size: int = Field(224, ge=40, description="square RGB image side (px) of both camera views")
     cameras: tuple[str, ...] = Field(("cam_left", "cam_right"), min_length=1, description="scene cameras recorded")
     max_rollouts: int | None = Field(None, ge=1, description="rollouts per task x method put in a dataset; None = all")
     replay_batch: int = Field(

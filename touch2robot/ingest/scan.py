@@ -1,0 +1,69 @@
+"""Finding the recordings of a folder: every regular, readable ``*.mcap`` file below it, and for every other
+entry with that name (a directory, a FIFO, a device, a dangling or looping link, an unreadable file) the
+reason it is skipped. Nothing here opens a file for reading, so a FIFO cannot block the walk."""
+
+from __future__ import annotations
+
+import os
+import stat
+from dataclasses import dataclass
+from pathlib import Path
+
+SUFFIX = ".mcap"
+
+
+@dataclass(frozen=True)
+class Scan:
+    recordings: list[Path]  # sorted, absolute
+    skipped: list[tuple[Path, str]]  # (entry, why it is not a recording)
+
+
+_NOT_REGULAR = (
+    (stat.S_ISDIR, "a directory"),
+    (stat.S_ISFIFO, "a FIFO"),
+    (stat.S_ISSOCK, "a socket"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+)
+
+
+def _kind(mode: int) -> str:
+    return next((name for test, name in _NOT_REGULAR if test(mode)), "not a regular file")
+
+
+def find_recordings(folder: Path) -> Scan:
+    """The ``*.mcap`` recordings below ``folder``, links followed (a folder reached twice, as by a link
+    loop, is walked once). Raises FileNotFoundError/NotADirectoryError naming ``folder`` itself."""
+    folder = Path(folder)
+    if not folder.exists():
+        raise FileNotFoundError(f"recordings folder {folder} does not exist")
+    if not folder.is_dir():
+        raise NotADirectoryError(f"recordings folder {folder} is not a directory")
+    found, skipped = [], []
+
+    def on_error(e: OSError) -> None:
+        skipped.append((Path(e.filename or folder), f"cannot list: {e.strerror}"))
+
+    walked: set[tuple[int, int]] = set()
+    for parent, dirs, files in os.walk(folder, onerror=on_error, followlinks=True):
+        here = os.stat(parent)
+        if (here.st_dev, here.st_ino) in walked:
+            dirs.clear()
+            continue
+        walked.add((here.st_dev, here.st_ino))
+        dirs.sort()
+        for name in sorted(n for n in dirs + files if n.endswith(SUFFIX)):
+            entry = Path(parent) / name
+            try:
+                mode = entry.stat().st_mode  # follows links: a link to a file counts as that file
+            except OSError as e:
+                link = " (a dangling or looping link)" if entry.is_symlink() else ""
+                skipped.append((entry, f"cannot stat{link}: {e.strerror}"))
+                continue
+            if not stat.S_ISREG(mode):
+                skipped.append((entry, f"{_kind(mode)}, not a recording file"))
+            elif not os.access(entry, os.R_OK):
+                skipped.append((entry, "not readable (permission denied)"))
+            else:
+                found.append(entry.absolute())
+    return Scan(sorted(found), skipped)
