@@ -30,7 +30,7 @@ from touch2robot.contacts import ContactsConfig
 from touch2robot.contacts.extract import human_contacts
 from touch2robot.ingest import ingest_file, recording_rows
 from touch2robot.retarget import LEAP_DEFAULT
-from touch2robot.retarget.lake import load_hand_motion, write_result
+from touch2robot.retarget.lake import load_hand_motion, result_rows
 from touch2robot.retarget.retargeter import Retargeter, retarget_motion
 from touch2robot.settings import DataLayout
 from touch2robot.sim.config import SimConfig
@@ -54,12 +54,9 @@ def demonstration(task: str, root: Path) -> dict:
     recording = recording_rows(layout.lake).to_pylist()[0]
     rows, _ = human_contacts(layout.lake, recording, ContactsConfig())
     lake_io.write_rows(layout.lake, "contacts", recording["recording_id"], rows, {"source": "human", "task": task})
-    write_result(
-        layout.lake,
-        retarget_motion(
-            load_hand_motion(layout.lake, recording["recording_id"]), LEAP_DEFAULT, Retargeter(LEAP_DEFAULT)
-        ),
-    )
+    rid = recording["recording_id"]
+    result = retarget_motion(load_hand_motion(layout.lake, rid), LEAP_DEFAULT, Retargeter(LEAP_DEFAULT))
+    lake_io.write_rows(layout.lake, "retargeted", rid, result_rows(result))
     return recording
 
 

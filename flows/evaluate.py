@@ -7,7 +7,7 @@ from pathlib import Path
 
 from prefect import flow, unmapped
 
-from tasks.common import file_digest, stored
+from tasks.common import stored
 from tasks.evaluate import (
     evaluate_ratings,
     evaluate_source,
@@ -19,7 +19,8 @@ from tasks.evaluate import (
 from tasks.ingest import refresh_catalog
 from tasks.runners import ProfileTaskRunner
 from touch2robot import tracking
-from touch2robot.evaluate import REFERENCE_SOURCE, evaluated_sources, folder_digest, ratings_files, source_folders
+from touch2robot.datasets import CONTACTS, file_digest, folder_digest
+from touch2robot.evaluate import REFERENCE_SOURCE, evaluated_sources, ratings_files, source_folders
 from touch2robot.metrics import ALL
 from touch2robot.settings import DataLayout
 
@@ -46,9 +47,9 @@ def evaluate(
 
     metrics = [r for s in per_source for r in s["contact_metrics"]]
     onsets = [r for s in per_source for r in s["onset_errors"]]
-    store_table(lake, "contact_metrics", metrics, ["source", "method"])
-    store_table(lake, "onset_errors", onsets, ["source", "method"])
-    store_table(lake, "user_study", [r for s in studies for r in s["rows"]], ["ratings_file"])
+    store_table(lake, "contact_metrics", metrics)
+    store_table(lake, "onset_errors", onsets)
+    store_table(lake, "user_study", [r for s in studies for r in s["rows"]])
     refresh_catalog(str(layout.root))
 
     uri = tracking.tracking_uri(layout)
@@ -56,7 +57,7 @@ def evaluate(
     # a copy: the task's (possibly cached) result object is not ours to extend
     runs = dict(
         stored(log_evaluation, layout.results)(
-            str(layout.root), profile, reference, metrics, summaries, folder_digest([layout.lake / "contacts"]), uri
+            str(layout.root), profile, reference, metrics, summaries, folder_digest([CONTACTS.folder(layout.lake)]), uri
         )
     )
     for path, sha, study in zip(paths, shas, studies, strict=True):

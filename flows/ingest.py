@@ -6,7 +6,7 @@ from pathlib import Path
 
 from prefect import flow, get_run_logger, unmapped
 
-from tasks.common import file_digest, stored
+from tasks.common import stored
 from tasks.ingest import (
     extract_human_contacts,
     extract_real_contacts,
@@ -16,9 +16,9 @@ from tasks.ingest import (
     report_ingest,
 )
 from tasks.runners import ProfileTaskRunner
+from touch2robot import datasets
 from touch2robot.config import load_profile
 from touch2robot.ingest import link_replays, recording_rows
-from touch2robot.ingest.scan import find_recordings
 from touch2robot.settings import DataLayout
 
 
@@ -29,11 +29,11 @@ def ingest(profile: str = "smoke", data: str | None = None, folder: str | None =
     layout = DataLayout.from_env(data)
     config = load_profile(profile).contacts
     lake = str(layout.lake)
-    scan = find_recordings(Path(folder or layout.recordings))
+    scan = datasets.recording_files(Path(folder or layout.recordings))
     for entry, why in scan.skipped:
         get_run_logger().warning("skipped %s: %s", entry, why)
     paths = [str(p) for p in scan.recordings]
-    digests = [file_digest(p) for p in paths]
+    digests = [datasets.file_digest(p) for p in paths]
     results = [f.result() for f in stored(ingest_recording, layout.results).map(paths, digests, unmapped(lake))]
     current = {r["path"]: r["recording_id"] for r in results if r["status"] != "quarantined"}
     remove_superseded(lake, current)

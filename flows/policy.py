@@ -11,6 +11,7 @@ from tasks.ingest import refresh_catalog
 from tasks.policy import build_policy_dataset, evaluate_policy, report_policy, rollout_sources, train_policy
 from tasks.runners import ProfileTaskRunner
 from touch2robot.config import load_profile
+from touch2robot.datasets import ROLLOUTS
 from touch2robot.settings import DataLayout
 
 
@@ -24,7 +25,7 @@ def policy(
     config = load_profile(profile).policy
     sources = rollout_sources(str(layout.root), config, tasks or config.tasks, methods or config.methods)
     if not sources:
-        print(f"policy: no rollouts in {layout.lake / 'rollouts'} (run the teachers first)")
+        print(f"policy: no rollouts in {ROLLOUTS.folder(layout.lake)} (run the teachers first)")
         return []
     root = str(layout.root)
     # replays and evaluation run the physics the rollouts were recorded with (the teachers' sim)

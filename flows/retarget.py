@@ -10,15 +10,8 @@ from tasks.ingest import refresh_catalog
 from tasks.retarget import report_retarget, retarget_recording
 from tasks.runners import ProfileTaskRunner
 from touch2robot.config import load_profile
-from touch2robot.ingest import recording_rows
+from touch2robot.datasets import RETARGETED, glove_sessions
 from touch2robot.settings import DataLayout
-
-
-def glove_sessions(rows: list[dict]) -> list[dict]:
-    """The ingested glove sessions, in file-name order (stable across runs)."""
-    return sorted(
-        (r for r in rows if r["status"] == "ingested" and r["kind"] == "glove_session"), key=lambda r: r["file_name"]
-    )
 
 
 @flow(name="retarget", task_runner=ProfileTaskRunner(), log_prints=True)
@@ -27,7 +20,7 @@ def retarget(profile: str = "smoke", data: str | None = None) -> dict:
     ``retarget`` section; draw the first recording of each task."""
     layout = DataLayout.from_env(data)
     config = load_profile(profile).retarget
-    gloves = glove_sessions(recording_rows(layout.lake).to_pylist())
+    gloves = glove_sessions(layout.lake)
     first = {}
     for r in gloves:
         first.setdefault(r["task"], r["recording_id"])
@@ -39,5 +32,6 @@ def retarget(profile: str = "smoke", data: str | None = None) -> dict:
     refresh_catalog(str(layout.root))
     summary = report_retarget(profile, results)
     print(f"retarget: {summary['recordings']} recordings, {summary['frames']} frames, {summary['failed_frames']} failed, "
-          f"mean fingertip residual {summary['residual_mean_mm']:.2f} mm -> {layout.lake / 'retargeted'}")  # fmt: skip
+          f"mean fingertip residual {summary['residual_mean_mm']:.2f} mm "
+          f"-> {RETARGETED.folder(layout.lake)}")  # fmt: skip
     return summary

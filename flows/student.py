@@ -9,15 +9,12 @@ import dataclasses
 
 from prefect import flow
 
-from flows.retarget import glove_sessions
-from tasks.common import file_digest, stored
+from tasks.common import stored
 from tasks.ingest import refresh_catalog
 from tasks.runners import ProfileTaskRunner
-from tasks.student import augment_dataset, reconstruct, report_student, teacher_rollouts_path, train_student
-from tasks.teachers import references_digest
-from touch2robot import lake as lake_io
+from tasks.student import augment_dataset, reconstruct, report_student, train_student
+from touch2robot import datasets
 from touch2robot.config import load_profile
-from touch2robot.ingest import recording_rows
 from touch2robot.settings import DataLayout
 from touch2robot.student.augment import split_demonstrations
 
@@ -32,24 +29,19 @@ def student(profile: str = "smoke", data: str | None = None, variants: list[str]
     variants = list(variants or config.variants)
     for v in variants:
         config.variant(v)  # an unknown variant fails here, before any training
-    recordings = []
-    for r in glove_sessions(recording_rows(layout.lake).to_pylist()):
-        if (
-            lake_io.file_path(layout.lake, "retargeted", r["recording_id"]).is_file()
-            and teacher_rollouts_path(layout.lake, config.teacher_method, r["task"]).is_file()
-        ):
-            recordings.append({k: r[k] for k in ("recording_id", "task", "subject")})
+    recordings = datasets.taught_demonstrations(layout.lake, config.teacher_method)
     if not recordings:
         print(
-            f"student: no teacher rollouts of {config.teacher_method} in {layout.lake / 'rollouts'}: run the teachers flow first"
+            f"student: no teacher rollouts of {config.teacher_method} in {datasets.ROLLOUTS.folder(layout.lake)}: "
+            "run the teachers flow first"
         )
         return {}
     demos: dict[str, list[str]] = {}
     for r in recordings:
         demos.setdefault(r["task"], []).append(r["recording_id"])
     split = dataclasses.asdict(split_demonstrations(demos, config.held_out_fraction, config.val_fraction, config.seed))
-    sources = [teacher_rollouts_path(layout.lake, config.teacher_method, t) for t in sorted(demos)]
-    digest = references_digest(layout.lake, recordings) + "".join(file_digest(p) for p in sources)
+    sources = [datasets.teacher_rollouts(layout.lake, config.teacher_method, t) for t in sorted(demos)]
+    digest = datasets.references_digest(layout.lake, recordings) + "".join(datasets.file_digest(p) for p in sources)
     root = str(layout.root)
     dataset = stored(augment_dataset, layout.results)(config, teacher, split, recordings, digest, root, profile)
     trained = [

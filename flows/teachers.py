@@ -6,14 +6,12 @@ from __future__ import annotations
 
 from prefect import flow
 
-from flows.retarget import glove_sessions
 from tasks.common import stored
 from tasks.ingest import refresh_catalog
 from tasks.runners import ProfileTaskRunner
-from tasks.teachers import kinematic_rollouts, references_digest, report_teachers, teacher_rollouts, train_teacher
-from touch2robot import lake as lake_io
+from tasks.teachers import kinematic_rollouts, report_teachers, teacher_rollouts, train_teacher
+from touch2robot import datasets
 from touch2robot.config import load_profile
-from touch2robot.ingest import recording_rows
 from touch2robot.settings import DataLayout
 
 
@@ -32,16 +30,15 @@ def teachers(
     for m in config.methods:
         config.method(m)  # an unknown method fails here, before any training
     demos: dict[str, list[dict]] = {}
-    for r in glove_sessions(recording_rows(layout.lake).to_pylist()):
-        if r["task"] in config.tasks and lake_io.file_path(layout.lake, "retargeted", r["recording_id"]).is_file():
-            demos.setdefault(r["task"], []).append({k: r[k] for k in ("recording_id", "task", "subject")})
+    for r in datasets.retargeted_demonstrations(layout.lake, config.tasks):
+        demos.setdefault(r["task"], []).append(r)
     missing = [t for t in config.tasks if t not in demos]
     if missing:
         print(f"teachers: no retargeted demonstrations for {missing}: run the ingest and retarget flows first")
     root = str(layout.root)
     trained, replays = [], []
     for task_name, recs in demos.items():
-        digest = references_digest(layout.lake, recs)
+        digest = datasets.references_digest(layout.lake, recs)
         replays.append(
             stored(kinematic_rollouts, layout.results).submit(task_name, config, recs, digest, root, profile)
         )

@@ -59,15 +59,6 @@ def cache_policy(*modules: str) -> CachePolicy:
     return INPUTS + TASK_SOURCE + LibraryCode(modules=("schemas", *modules))
 
 
-def file_digest(path: str | Path) -> str:
-    """Content hash of an input file: a path alone is no cache key."""
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def one_torch_thread() -> None:
     """One intra-op torch thread for a training (teacher, student variant, policy): the stages
     train side by side (``training_runner``), and torch's default of a thread per core each

@@ -15,10 +15,17 @@ from schemas.tables import SCHEMAS
 from tasks.common import ALWAYS_RUN, cache_policy
 from touch2robot import evaluate as ev
 from touch2robot import tracking
+from touch2robot.datasets import EVALUATION_IDS
 from touch2robot.metrics import ALL
 from touch2robot.settings import DataLayout
 
-_LIBRARY = ("touch2robot.evaluate", "touch2robot.metrics", "touch2robot.stats", "touch2robot.lake")
+_LIBRARY = (
+    "touch2robot.evaluate",
+    "touch2robot.metrics",
+    "touch2robot.stats",
+    "touch2robot.lake",
+    "touch2robot.datasets",
+)
 
 # Timelines drawn per (source, method, task) run: enough to see the agreement, few enough
 # that the paper profile's hundreds of rollouts do not flood the artefact store.
@@ -44,8 +51,8 @@ def _frame(records: list[dict], table: str) -> pd.DataFrame:
 def evaluate_source(lake: str, source: str, reference: str, lake_digest: str) -> dict[str, list[dict]]:
     """Contact metrics and onset errors of one evaluated source vs the reference.
 
-    ``lake_digest`` (:func:`touch2robot.evaluate.folder_digest` of the folders it reads) keys the
-    cache on the data: a path alone would serve stale scores after the lake changed.
+    ``lake_digest`` (:func:`touch2robot.datasets.folder_digest` of the folders it reads: their files'
+    content) keys the cache on the data: a path alone would serve stale scores after the lake changed.
     """
     contacts = ev.read_contacts(Path(lake), [reference, source])
     metrics = ev.contact_metrics_table(contacts, source, reference)
@@ -73,13 +80,13 @@ def evaluate_ratings(path: str, ratings_sha256: str) -> dict:
 
 
 @task(**ALWAYS_RUN)
-def store_table(lake: str, table: str, records: list[dict], keys: list[str]) -> list[str]:
-    """Replace an evaluation table's files with ``records`` (one file per ``keys`` group).
+def store_table(lake: str, table: str, records: list[dict]) -> list[str]:
+    """Replace an evaluation table's files with ``records`` (one file per group of the catalog's key columns).
 
     Not cached on purpose: it is cheap, and running it every time keeps the lake equal to the
     current results even if someone deleted files behind a cached computation.
     """
-    return ev.replace_table(Path(lake), table, _frame(records, table), keys)
+    return ev.replace_table(Path(lake), table, _frame(records, table), EVALUATION_IDS[table].columns)
 
 
 def _summary(metrics: pd.DataFrame, onsets: pd.DataFrame) -> pd.DataFrame:

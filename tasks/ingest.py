@@ -14,7 +14,7 @@ from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
 from schemas.tables import ROBOT_REGIONS
 from tasks.common import ALWAYS_RUN, cache_policy
-from touch2robot import catalog, tracking
+from touch2robot import catalog, datasets, tracking
 from touch2robot import lake as lake_io
 from touch2robot.contacts import ContactsConfig
 from touch2robot.contacts.extract import human_contacts, replay_contacts
@@ -41,18 +41,20 @@ def remove_superseded(lake: str, current: dict[str, str]) -> list[str]:
     return stale
 
 
-@task(cache_policy=cache_policy("touch2robot.contacts", "touch2robot.lake"), persist_result=True,
+@task(cache_policy=cache_policy("touch2robot.contacts", "touch2robot.lake", "touch2robot.datasets"),
+      persist_result=True,
       task_run_name="human-contacts-{recording[recording_id]}")  # fmt: skip
 def extract_human_contacts(recording: dict, config: ContactsConfig, lake: str) -> dict:
     """Human contacts + glove thresholds of one glove session."""
     rows, thresholds = human_contacts(Path(lake), recording, config)
     rid = recording["recording_id"]
-    lake_io.write_rows(Path(lake), "contacts", rid, rows, {"source": "human", "task": recording["task"]})
-    lake_io.write_rows(Path(lake), "thresholds", rid, thresholds)
+    datasets.CONTACTS.write(Path(lake), datasets.RecordingKey(rid), rows, source="human", task=recording["task"])
+    datasets.LAKE["thresholds"].write(Path(lake), datasets.RecordingKey(rid), thresholds)
     return {"recording_id": rid, "rows": rows.num_rows, "thresholds": thresholds.to_pylist()}
 
 
-@task(cache_policy=cache_policy("touch2robot.contacts", "touch2robot.lake"), persist_result=True,
+@task(cache_policy=cache_policy("touch2robot.contacts", "touch2robot.lake", "touch2robot.datasets"),
+      persist_result=True,
       task_run_name="real-contacts-{replay[recording_id]}")  # fmt: skip
 def extract_real_contacts(
     replay: dict, calibration_id: str, reference: dict | None, config: ContactsConfig, lake: str
@@ -60,8 +62,8 @@ def extract_real_contacts(
     """Real-robot contacts + TwinTac/FSR thresholds of one replay."""
     rows, thresholds = replay_contacts(Path(lake), replay, calibration_id, reference, config)
     rid = replay["recording_id"]
-    lake_io.write_rows(Path(lake), "contacts", rid, rows, {"source": "real", "task": replay["task"]})
-    lake_io.write_rows(Path(lake), "thresholds", rid, thresholds)
+    datasets.CONTACTS.write(Path(lake), datasets.RecordingKey(rid), rows, source="real", task=replay["task"])
+    datasets.LAKE["thresholds"].write(Path(lake), datasets.RecordingKey(rid), thresholds)
     return {"recording_id": rid, "rows": rows.num_rows}
 
 
@@ -77,9 +79,7 @@ def _timeline_png(lake: Path, recording: dict, out: Path) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    rows = pq.read_table(
-        lake_io.file_path(lake, "contacts", recording["recording_id"], {"source": "human", "task": recording["task"]})
-    ).to_pandas()
+    rows = pq.read_table(datasets.human_contacts(lake, recording)).to_pandas()
     fig, ax = plt.subplots(figsize=(9, 3.2))
     for k, region in enumerate(ROBOT_REGIONS):
         r = rows[rows.region == region]

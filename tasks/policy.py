@@ -12,14 +12,20 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_table_artifact
 
-from tasks.common import ALWAYS_RUN, cache_policy, checkpoint_on_stop, file_digest, one_torch_thread
-from touch2robot import lake as lake_io
-from touch2robot import tracking
+from tasks.common import ALWAYS_RUN, cache_policy, checkpoint_on_stop, one_torch_thread
+from touch2robot import datasets, tracking
 from touch2robot.policy import PolicyConfig
 from touch2robot.settings import DataLayout
 from touch2robot.sim.config import SimConfig
 
-POLICY_MODULES = ("touch2robot.policy", "touch2robot.sim", "touch2robot.scenes", "touch2robot.leap", "touch2robot.lake")
+POLICY_MODULES = (
+    "touch2robot.policy",
+    "touch2robot.sim",
+    "touch2robot.scenes",
+    "touch2robot.leap",
+    "touch2robot.lake",
+    "touch2robot.datasets",
+)
 DATASET_FIELDS = ("image_size", "cameras", "max_rollouts", "same_demonstrations")
 TAGS_NOTE = "none: ResNet-18 trained from scratch (pretrained_backbone_weights=None, no downloads)"
 
@@ -43,7 +49,7 @@ def build_policy_dataset(source: dict, config: PolicyConfig, sim: SimConfig, dat
 
     layout = DataLayout.from_env(data)
     rollouts = read_rollouts(Path(source["path"]), config.max_rollouts, source["references"])
-    root = layout.datasets / f"{source['method']}-{source['task']}"
+    root = datasets.policy_dataset(layout, source["method"], source["task"])
     summary = build_dataset(
         root, source["task"], source["method"], rollouts, build_scene(source["task"], sim), sim, config
     )
@@ -75,7 +81,7 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -
     key = _digest(
         {"dataset": dataset["digest"], "references": dataset["references"], "frames": dataset["frames"], **settings}
     )
-    out = layout.policies / f"{dataset['method']}-{dataset['task']}-{key}"
+    out = datasets.policy_training(layout, dataset["method"], dataset["task"], key)
     out.mkdir(parents=True, exist_ok=True)
     run_file = out / "mlflow_run_id"
     tags = {
@@ -162,9 +168,8 @@ def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: s
         "hold_joint_err_rad": fit.hold_joint_err_rad, "hold_wrist_err_mm": fit.hold_wrist_err_mm,
         "episode_steps": result.steps, "replans": result.replans, "mlflow_run": trained["mlflow_run"],
     }  # fmt: skip
-    lake_io.write_rows(
-        layout.lake, "policy_eval", f"{trained['method']}-{trained['task']}", pa.Table.from_pylist([row])
-    )
+    key = datasets.MethodTaskKey(trained["method"], trained["task"])
+    datasets.POLICY_EVAL.write(layout.lake, key, pa.Table.from_pylist([row]))
     tracking.experiment(layout, "policy")
     with mlflow.start_run(run_id=trained["mlflow_run"]):
         mlflow.log_metrics({"eval/success_rate": row["success_rate"], "eval/ci_low": low, "eval/ci_high": high, "eval/mean_progress": row["mean_progress"],
@@ -211,7 +216,7 @@ def rollout_sources(
                 "method": s.method,
                 "origin": s.origin,
                 "path": str(s.path),
-                "digest": file_digest(s.path),
+                "digest": datasets.file_digest(s.path),
                 "references": references,
             }
         )

@@ -12,8 +12,7 @@ from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
 from tasks.common import ALWAYS_RUN, cache_policy
-from touch2robot import lake as lake_io
-from touch2robot import tracking
+from touch2robot import datasets, tracking
 from touch2robot.retarget import RetargetConfig
 from touch2robot.settings import DataLayout
 
@@ -48,14 +47,15 @@ def _summary(result: RetargetResult) -> dict:
     }
 
 
-@task(cache_policy=cache_policy("touch2robot.retarget", "touch2robot.leap", "touch2robot.lake"), persist_result=True, retries=1,
+@task(cache_policy=cache_policy("touch2robot.retarget", "touch2robot.leap", "touch2robot.lake", "touch2robot.datasets"),
+      persist_result=True, retries=1,
       task_run_name="retarget-{recording[recording_id]}")  # fmt: skip
 def retarget_recording(recording: dict, config: RetargetConfig, data: str, profile: str, render: bool = False) -> dict:
     """Retarget one ingested glove recording into the ``retargeted`` table, with an MLflow run
     (stage "retarget") and, if ``render``, a drawing of human vs robot over a few frames. Hand
     motion that cannot be retargeted is reported (``error``) and leaves no rows, like a
     quarantined file."""
-    from touch2robot.retarget.lake import load_hand_motion, write_result
+    from touch2robot.retarget.lake import load_hand_motion, result_rows
     from touch2robot.retarget.retargeter import HandMotionError, Retargeter, retarget_motion
 
     layout = DataLayout.from_env(data)
@@ -66,11 +66,11 @@ def retarget_recording(recording: dict, config: RetargetConfig, data: str, profi
         motion = load_hand_motion(layout.lake, rid, config)
     except HandMotionError as e:
         get_run_logger().warning("not retargeted: %s", e)
-        lake_io.file_path(layout.lake, "retargeted", rid).unlink(missing_ok=True)
+        datasets.RETARGETED.path(layout.lake, datasets.RecordingKey(rid)).unlink(missing_ok=True)
         return {**base, "error": str(e)}
     retargeter = Retargeter(config)
     result = retarget_motion(motion, config, retargeter)
-    write_result(layout.lake, result)
+    datasets.RETARGETED.write(layout.lake, datasets.RecordingKey(result.recording_id), result_rows(result))
     summary = _summary(result)
     tags = {"profile": profile, "recording_id": rid, "task": recording["task"] or "", "file": name}
     with tracking.stage_run(layout, "retarget", f"retarget-{name}", tags) as run:

@@ -13,9 +13,8 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
-from tasks.common import ALWAYS_RUN, cache_policy, checkpoint_on_stop, file_digest, one_torch_thread
-from touch2robot import lake as lake_io
-from touch2robot import tracking
+from tasks.common import ALWAYS_RUN, cache_policy, checkpoint_on_stop, one_torch_thread
+from touch2robot import datasets, tracking
 from touch2robot.settings import DataLayout
 from touch2robot.student.config import StudentConfig
 from touch2robot.teachers.config import TeacherConfig
@@ -26,12 +25,9 @@ STUDENT_MODULES = (
     "touch2robot.sim",
     "touch2robot.scenes",
     "touch2robot.lake",
+    "touch2robot.datasets",
     "touch2robot.metrics",
 )
-
-
-def teacher_rollouts_path(lake: Path, method: str, task_name: str) -> Path:
-    return lake_io.file_path(lake, "rollouts", f"teacher-{task_name}", {"method": method})
 
 
 def _sha(payload: object) -> str:
@@ -90,7 +86,7 @@ def augment_dataset(
                       "seed": config.seed, "teacher_method": config.teacher_method, "in_sample": split["in_sample"], "tasks": {}}  # fmt: skip
     paths = {}
     for task_name in tasks:
-        source = teacher_rollouts_path(layout.lake, config.teacher_method, task_name)
+        source = datasets.teacher_rollouts(layout.lake, config.teacher_method, task_name)
         if not source.is_file():
             raise FileNotFoundError(
                 f"student: no teacher rollouts of {config.teacher_method}/{task_name} at {source}: run the teachers flow first"
@@ -100,12 +96,12 @@ def augment_dataset(
         val = [s for s in seqs if s.reference_id in split["val"].get(task_name, [])]
         count = counts.get(task_name, 0)
         table = augment(train, count, config.joint_noise_std, config.seed, val)
-        path = lake_io.write_rows(layout.lake, "student_dataset", task_name, table)
+        path = datasets.STUDENT_DATASET.write(layout.lake, datasets.TaskKey(task_name), table)
         paths[task_name] = str(path)
         manifest["tasks"][task_name] = {
             "train_demos": split["train"].get(task_name, []), "val_demos": split["val"].get(task_name, []), "held_out_demos": split["held_out"].get(task_name, []),
             "teacher_rollouts_train": len(train), "teacher_rollouts_val": len(val), "augmented_rollouts": count,
-            "noisy_copies": max(count - len(train), 0), "rows": table.num_rows, "file": path.name, "sha256": file_digest(path),
+            "noisy_copies": max(count - len(train), 0), "rows": table.num_rows, "file": path.name, "sha256": datasets.file_digest(path),
         }  # fmt: skip
     with tracking.stage_run(layout, "student", "dataset", {"profile": profile, **_split_tags(split)}) as run:
         mlflow.log_params(
@@ -159,7 +155,7 @@ def train_student(
     layout = DataLayout.from_env(data)
     cfg = config.variant(variant)
     dump = cfg.model_dump(mode="json", exclude={"ablations"})
-    folder = layout.checkpoints / "student" / f"{variant}-{_sha([dump, dataset['digest']])[:12]}"
+    folder = datasets.student_checkpoints(layout, variant, _sha([dump, dataset["digest"]]))
     tags = {
         "profile": profile,
         "variant": variant,
@@ -247,7 +243,7 @@ def reconstruct(
         trained_on = [i for role in ("train", "val") for i in split[role].get(task_name, []) if i not in ids]
         reconstructed = ids + trained_on if variant == "full" else ids
         refs = list(_references(layout, [by_id[i] for i in reconstructed], teacher).values())
-        source = teacher_rollouts_path(layout.lake, method, task_name)
+        source = datasets.teacher_rollouts(layout.lake, method, task_name)
         result = reconstruct_task(
             net,
             task_name,
@@ -259,15 +255,16 @@ def reconstruct(
             evaluated=ids,
         )
         if variant == "full":
-            lake_io.write_rows(layout.lake, "rollouts", f"student-{task_name}", result.rollouts, {"method": method})
-            lake_io.write_rows(
-                layout.lake,
-                "contacts",
-                f"student-{method}",
+            lake = layout.lake
+            datasets.ROLLOUTS.write(lake, datasets.RolloutsKey("student", task_name), result.rollouts, method=method)
+            datasets.CONTACTS.write(
+                lake,
+                datasets.RolloutContactsKey("student", method),
                 result.contacts,
-                {"source": "reconstructed", "task": task_name},
+                source="reconstructed",
+                task=task_name,
             )
-            lake_io.write_rows(layout.lake, "student_predictions", f"{method}-{task_name}", result.predictions)
+            datasets.STUDENT_PREDICTIONS.write(lake, datasets.MethodTaskKey(method, task_name), result.predictions)
         with mlflow.start_run(run_id=trained["mlflow_run"]):
             mlflow.log_metrics({f"heldout/{task_name}/{k}": v for k, v in result.figures.items() if v == v})
         rows.append({"variant": variant, "task": task_name, "demos": len(refs), **result.figures})

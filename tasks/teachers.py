@@ -10,9 +10,8 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
-from tasks.common import ALWAYS_RUN, cache_policy, checkpoint_on_stop, file_digest, one_torch_thread
-from touch2robot import lake as lake_io
-from touch2robot import tracking
+from tasks.common import ALWAYS_RUN, cache_policy, checkpoint_on_stop, one_torch_thread
+from touch2robot import datasets, tracking
 from touch2robot.settings import DataLayout
 from touch2robot.teachers.config import TeacherConfig
 
@@ -23,22 +22,8 @@ TEACHER_MODULES = (
     "touch2robot.scenes",
     "touch2robot.contacts",
     "touch2robot.lake",
+    "touch2robot.datasets",
 )
-# the lake files a demonstration reference is built from (see touch2robot.teachers.reference)
-REFERENCE_TABLES = ("retargeted", "object_pose", "hand_keypoints")
-
-
-def references_digest(lake: Path, recordings: list[dict]) -> str:
-    """Content hash of every lake file the references of ``recordings`` read: a new retargeting
-    or new contacts retrain the teacher, an unchanged lake hits the cache."""
-    h = hashlib.sha256()
-    for r in sorted(recordings, key=lambda r: r["recording_id"]):
-        paths = [lake_io.file_path(lake, t, r["recording_id"]) for t in REFERENCE_TABLES]
-        paths.append(lake_io.file_path(lake, "contacts", r["recording_id"], {"source": "human", "task": r["task"]}))
-        for p in paths:
-            h.update(p.name.encode())
-            h.update(file_digest(p).encode() if p.is_file() else b"missing")
-    return h.hexdigest()
 
 
 def _references(layout: DataLayout, recordings: list[dict], config: TeacherConfig):
@@ -80,7 +65,7 @@ def _run_folder(layout: DataLayout, task_name: str, method: str, config: Teacher
             sort_keys=True,
         ).encode()
     )
-    return layout.checkpoints / "teachers" / f"{task_name}-{method}-{key.hexdigest()[:12]}"
+    return datasets.teacher_checkpoints(layout, task_name, method, key.hexdigest())
 
 
 @task(
@@ -127,8 +112,10 @@ def train_teacher(
 
 
 def _store_rollouts(layout: DataLayout, task_name: str, method: str, origin: str, rollouts, contacts) -> None:
-    lake_io.write_rows(layout.lake, "rollouts", f"{origin}-{task_name}", rollouts, {"method": method})
-    lake_io.write_rows(layout.lake, "contacts", f"{origin}-{method}", contacts, {"source": "sim", "task": task_name})
+    datasets.ROLLOUTS.write(layout.lake, datasets.RolloutsKey(origin, task_name), rollouts, method=method)
+    datasets.CONTACTS.write(
+        layout.lake, datasets.RolloutContactsKey(origin, method), contacts, source="sim", task=task_name
+    )
 
 
 @task(

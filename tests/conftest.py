@@ -88,7 +88,7 @@ def demo_lake(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from touch2robot.contacts.extract import human_contacts
     from touch2robot.ingest import ingest_file, recording_rows
     from touch2robot.retarget import LEAP_DEFAULT
-    from touch2robot.retarget.lake import load_hand_motion, write_result
+    from touch2robot.retarget.lake import load_hand_motion, result_rows
     from touch2robot.retarget.retargeter import Retargeter, retarget_motion
     from touch2robot.settings import DataLayout
     from touch2robot.synth.config import SynthConfig
@@ -106,7 +106,8 @@ def demo_lake(tmp_path_factory: pytest.TempPathFactory) -> Path:
         rid = recording["recording_id"]
         rows, _ = human_contacts(layout.lake, recording, ContactsConfig())
         lake_io.write_rows(layout.lake, "contacts", rid, rows, {"source": "human", "task": recording["task"]})
-        write_result(layout.lake, retarget_motion(load_hand_motion(layout.lake, rid), LEAP_DEFAULT, retargeter))
+        result = retarget_motion(load_hand_motion(layout.lake, rid), LEAP_DEFAULT, retargeter)
+        lake_io.write_rows(layout.lake, "retargeted", rid, result_rows(result))
     return layout.root
 
 

@@ -14,8 +14,6 @@ No orchestration (Prefect) imports: the flow ``evaluate`` wraps these functions.
 
 from __future__ import annotations
 
-import hashlib
-import re
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -28,6 +26,8 @@ import pyarrow.dataset as ds
 
 from schemas.tables import PARTITIONS, ROBOT_REGIONS, SCHEMAS
 from touch2robot import lake as lake_io
+from touch2robot.datasets import LAKE, folder_digest
+from touch2robot.datasets import safe_file_id as file_id
 from touch2robot.metrics import ALL, COUNT_COLUMNS, contact_counts_long, contact_scores_table, onset_error_ms_long
 from touch2robot.stats import CONDITIONS, QUESTIONS, user_study
 
@@ -111,23 +111,6 @@ def evaluated_sources(lake: Path, reference: str = REFERENCE_SOURCE) -> list[str
 def source_folders(lake: Path, source: str, reference: str = REFERENCE_SOURCE) -> list[Path]:
     """The lake folders one source's evaluation reads: its contacts, the reference's, the time maps."""
     return [lake / "contacts" / f"source={reference}", lake / "contacts" / f"source={source}", lake / "time_map"]
-
-
-def folder_digest(folders: Iterable[Path]) -> str:
-    """sha256 over the names, sizes and modification times of the Parquet files in ``folders``.
-
-    A cache key that changes whenever a lake file is written, replaced or removed (the lake
-    only ever renames whole files into place), without reading gigabytes of contacts.
-    """
-    h = hashlib.sha256()
-    for folder in folders:
-        h.update(folder.as_posix().encode())
-        for p in sorted(folder.rglob("*.parquet")) if folder.is_dir() else []:
-            if p.name.startswith("."):
-                continue  # a write in progress; its rename will change the digest
-            st = p.stat()
-            h.update(f"{p.relative_to(folder).as_posix()}\0{st.st_size}\0{st.st_mtime_ns}\n".encode())
-    return h.hexdigest()
 
 
 def read_contacts(lake: Path, sources: Sequence[str], task: str | None = None) -> pd.DataFrame:
@@ -306,18 +289,6 @@ def user_study_table(ratings: pd.DataFrame, ratings_file: str, ratings_sha256: s
 # --------------------------------------------------------------------------- writing
 
 
-def file_id(*parts: str) -> str:
-    """A lake file id for an evaluation key, e.g. ``real__touch2robot``.
-
-    Characters outside ``[A-Za-z0-9_.-]`` (and a leading dot, which would hide the file) become
-    ``-`` and a short hash of the exact key is then appended, so two keys never share a file
-    and the id stays readable.
-    """
-    raw = "__".join(parts)
-    safe = re.sub(r"[^A-Za-z0-9_.-]|^\.", "-", raw)
-    return safe if safe == raw else f"{safe}-{hashlib.sha256(raw.encode()).hexdigest()[:8]}"
-
-
 def replace_table(lake: Path, table: str, rows: pd.DataFrame, keys: Sequence[str]) -> list[str]:
     """Make ``rows`` the whole content of an evaluation table: one file per ``keys`` group.
 
@@ -332,7 +303,7 @@ def replace_table(lake: Path, table: str, rows: pd.DataFrame, keys: Sequence[str
     schema = SCHEMAS[table]
     written = []
     for key, group in rows.groupby(list(keys), sort=True) if len(rows) else []:
-        fid = file_id(*(str(k) for k in (key if isinstance(key, tuple) else (key,))))
+        fid = LAKE[table].file_id([str(k) for k in (key if isinstance(key, tuple) else (key,))], {})
         rows_arrow = pa.Table.from_pandas(group, schema=schema, preserve_index=False).replace_schema_metadata()
         lake_io.write_rows(lake, table, fid, rows_arrow)
         written.append(fid)

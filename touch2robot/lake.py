@@ -1,7 +1,8 @@
 """The Parquet lake: one folder per table under ``<data>/lake``, one file per recording
 or rollout (named by its id), hive-style partition folders where ``schemas.tables.PARTITIONS``
 says so. Every file is written to a temporary name and renamed into place, so a reader
-or a crash never sees half a file, and re-writing the same id replaces it (idempotent)."""
+or a crash never sees half a file, and re-writing the same id replaces it (idempotent).
+Which id a file has, and who writes it, is the catalog's to say: ``touch2robot.datasets``."""
 
 from __future__ import annotations
 

@@ -33,7 +33,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from schemas.tables import ROBOT_REGIONS, ROLLOUT_ORIGINS, TASKS
-from touch2robot import lake as lake_io
+from touch2robot.datasets import ROLLOUTS, lerobot_repo_id
 from touch2robot.leap import description as hd
 from touch2robot.policy.config import VIDEO_BACKEND, PolicyConfig
 
@@ -90,28 +90,19 @@ class Source:
     path: Path
 
 
-def dataset_id(task: str, method: str) -> str:
-    """LeRobot ``repo_id`` of a task x method dataset (local only: never pushed)."""
-    return f"touch2robot/{method}-{task}"
-
-
 def sources(lake: Path, preference: tuple[str, ...] = ORIGIN_PREFERENCE) -> list[Source]:
     """Per task x method present in the lake's ``rollouts`` table, the file of the most
     preferred origin (default student > teacher > kinematic; origins not in ``preference``
-    are never used), sorted by task then method."""
+    are never used), sorted by task then method. A file the catalog cannot name (not
+    ``method=<m>/<origin>-<task>.parquet``) raises :class:`touch2robot.datasets.DatasetIdError`."""
     unknown = set(preference) - set(ORIGIN_PREFERENCE)
     if unknown:
         raise ValueError(f"policy.origins: unknown origin(s) {sorted(unknown)}; choose from {ORIGIN_PREFERENCE}")
     best: dict[tuple[str, str], Source] = {}
-    for path in lake_io.files(lake, "rollouts"):
-        key, _, method = path.parent.name.partition("=")
-        origin, _, task = path.stem.partition("-")
-        if key != "method" or origin not in ORIGIN_PREFERENCE or task not in TASKS:
-            raise RolloutError(
-                f"{path}: expected lake/rollouts/method=<m>/<origin>-<task>.parquet with origin in {ORIGIN_PREFERENCE}, task in {TASKS}"
-            )
+    for (origin, task), partition, path in ROLLOUTS.entries(lake):
         if origin not in preference:
             continue
+        method = partition["method"]
         cand = Source(task, method, origin, path)
         old = best.get((task, method))
         if old is None or preference.index(origin) < preference.index(old.origin):
@@ -326,7 +317,7 @@ def build_dataset(
     root = Path(root)
     root.parent.mkdir(parents=True, exist_ok=True)
     tmp = root.with_name(f".{root.name}.{uuid.uuid4().hex[:8]}.tmp")
-    repo_id = dataset_id(task, method)
+    repo_id = lerobot_repo_id(method, task)
     instruction = TASK_INSTRUCTIONS[task]
     errors: list[np.ndarray] = []
     renderer = CameraRenderer(scene, cfg.cameras, cfg.image_size)

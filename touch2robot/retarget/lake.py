@@ -1,5 +1,5 @@
 """Lake input and output of retargeting: a glove recording's ``hand_keypoints`` + ``wrist_pose``
-rows in, its ``retargeted`` rows out (one file per recording, written atomically)."""
+rows in, its ``retargeted`` rows out (the retarget task writes them: ``touch2robot.datasets.RETARGETED``)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from touch2robot import lake as lake_io
+from touch2robot.datasets import LAKE, RecordingKey
 from touch2robot.retarget.config import LEAP_DEFAULT, RetargetConfig
 from touch2robot.retarget.retargeter import (
     STATUS_NAMES,
@@ -26,7 +26,7 @@ def load_hand_motion(lake: Path, recording_id: str, config: RetargetConfig = LEA
     """The validated hand motion of one ingested glove recording. Keypoints and wrist pose are
     paired frame by frame: the tracker stamps both with the frame's time, so they must have the
     same frames (within ``config.time_tolerance_s``); anything else is an error naming the recording."""
-    paths = {name: lake_io.file_path(Path(lake), name, recording_id) for name in ("hand_keypoints", "wrist_pose")}
+    paths = {name: LAKE[name].path(lake, RecordingKey(recording_id)) for name in ("hand_keypoints", "wrist_pose")}
     missing = [name for name, p in paths.items() if not p.is_file()]
     if missing:
         raise HandMotionError(f"recording {recording_id}: no {' or '.join(missing)} rows in the lake")
@@ -67,8 +67,3 @@ def result_rows(result: RetargetResult) -> pa.Table:
             **{c: result.wrist_quat[:, i] for i, c in enumerate(POSE_COLUMNS[3:])},
         }
     )
-
-
-def write_result(lake: Path, result: RetargetResult) -> Path:
-    """Write (replace) one recording's ``retargeted`` rows."""
-    return lake_io.write_rows(Path(lake), "retargeted", result.recording_id, result_rows(result))

@@ -1,0 +1,172 @@
+"""The catalog of the data folder (touch2robot.datasets): every id format builds and parses back,
+a mistyped id fails naming it, the ids are the lake's historical spellings, and the readiness
+queries find what the stages need."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+from conftest import scripted_rollout_rows
+
+from schemas.tables import SCHEMAS
+from touch2robot import datasets as ds
+from touch2robot.settings import DataLayout
+
+ROUND_TRIPS = [
+    (ds.RECORDING_ID, ds.RecordingKey("0123456789abcdef"), "0123456789abcdef"),
+    (ds.ROLLOUTS_ID, ds.RolloutsKey("teacher", "pick"), "teacher-pick"),
+    (ds.ROLLOUTS_ID, ds.RolloutsKey("kinematic", "drawer"), "kinematic-drawer"),
+    (ds.ROLLOUT_CONTACTS_ID, ds.RolloutContactsKey("kinematic", "dex-retargeting"), "kinematic-dex-retargeting"),
+    (ds.ROLLOUT_CONTACTS_ID, ds.RolloutContactsKey("student", "touch2robot"), "student-touch2robot"),
+    (ds.TASK_ID, ds.TaskKey("wipe"), "wipe"),
+    (ds.METHOD_TASK_ID, ds.MethodTaskKey("dex-retargeting", "rotate"), "dex-retargeting-rotate"),
+    (ds.TEACHER_RUN_ID, ds.TeacherRunKey("pick", "contrack", "0123456789ab"), "pick-contrack-0123456789ab"),
+    (ds.STUDENT_RUN_ID, ds.StudentRunKey("no_tactile", "0123456789ab"), "no_tactile-0123456789ab"),
+    (ds.POLICY_RUN_ID, ds.PolicyRunKey("dex-retargeting", "pick", "0123456789ab"), "dex-retargeting-pick-0123456789ab"),
+]
+
+
+@pytest.mark.parametrize(("fmt", "key", "file_id"), ROUND_TRIPS, ids=[r[2] for r in ROUND_TRIPS])
+def test_every_id_format_builds_and_parses_back(fmt: ds.IdFormat, key: tuple, file_id: str) -> None:
+    assert fmt.build(key) == file_id
+    assert fmt.parse(file_id) == key
+    assert type(fmt.parse(file_id)) is fmt.key
+
+
+@pytest.mark.parametrize(
+    ("fmt", "file_id", "message"),
+    [
+        (ds.ROLLOUTS_ID, "teacher_pick", r"'teacher_pick' is not a \{origin\}-\{task\} id \(origin one of"),
+        (ds.ROLLOUTS_ID, "replay-pick", r"'replay-pick' is not a \{origin\}-\{task\} id"),
+        (ds.ROLLOUTS_ID, "teacher-pik", r"task one of \('pick', 'rotate', 'wipe', 'drawer'\)"),
+        (ds.METHOD_TASK_ID, "touch2robot", r"'touch2robot' is not a \{method\}-\{task\} id"),
+        (ds.TASK_ID, "Pick", r"'Pick' is not a \{task\} id"),
+        (ds.TEACHER_RUN_ID, "pick-contrack-xyz", r"config 12 hex digits"),
+        (ds.RECORDING_ID, ".hidden", r"'.hidden' is not a \{recording_id\} id"),
+        (ds.RECORDING_ID, "a/b", r"'a/b' is not a \{recording_id\} id"),
+    ],
+)
+def test_a_mistyped_id_fails_naming_it(fmt: ds.IdFormat, file_id: str, message: str) -> None:
+    with pytest.raises(ds.DatasetIdError, match=message):
+        fmt.parse(file_id)
+
+
+def test_a_mistyped_key_fails_naming_the_table_and_the_field(tmp_path: Path) -> None:
+    with pytest.raises(
+        ds.DatasetIdError, match=r"lake table 'rollouts': \{origin\}-\{task\}: task 'pik' is not one of"
+    ):
+        ds.ROLLOUTS.path(tmp_path, ds.RolloutsKey("teacher", "pik"), method="touch2robot")
+    with pytest.raises(ds.DatasetIdError, match=r"origin 'teachers' is not one of"):
+        ds.ROLLOUTS_ID.build(ds.RolloutsKey("teachers", "pick"))
+    with pytest.raises(ds.DatasetIdError, match=r"method 'a/b' is not a name"):
+        ds.METHOD_TASK_ID.build(ds.MethodTaskKey("a/b", "pick"))
+    with pytest.raises(ValueError, match=r"partitioned by \('method',\)"):
+        ds.ROLLOUTS.path(tmp_path, ds.RolloutsKey("teacher", "pick"))
+
+
+def test_evaluation_ids_join_their_key_columns() -> None:
+    fmt = ds.EVALUATION_IDS["contact_metrics"]
+    assert fmt.build(("real", "touch2robot")) == "real__touch2robot"
+    assert fmt.parse("real__touch2robot") == ("real", "touch2robot")
+    unsafe = fmt.build(("sim", "a/b"))
+    assert unsafe.startswith("sim__a-b-") and "/" not in unsafe
+    with pytest.raises(ds.DatasetIdError, match=r"'real' is not a source__method id"):
+        fmt.parse("real")
+    with pytest.raises(ds.DatasetIdError, match="has not 2 parts"):
+        fmt.build(("real",))
+    assert ds.EVALUATION_IDS["user_study"].parse("ratings_SYNTHETIC.csv") == ("ratings_SYNTHETIC.csv",)
+
+
+def test_every_lake_table_is_in_the_catalog_with_its_schema() -> None:
+    assert set(ds.LAKE) == set(SCHEMAS)
+    assert all(t.schema is SCHEMAS[name] and t.name == name for name, t in ds.LAKE.items())
+    assert ds.CONTACTS.partition_keys == ("source", "task") and ds.ROLLOUTS.partition_keys == ("method",)
+
+
+def test_lake_paths_keep_their_historical_names(tmp_path: Path) -> None:
+    """The spellings the stages used before the catalog: a refactor must not move a file."""
+    lake = tmp_path / "lake"
+    assert ds.teacher_rollouts(lake, "touch2robot", "pick") == lake / "rollouts/method=touch2robot/teacher-pick.parquet"
+    sim = ds.CONTACTS.path(lake, ds.RolloutContactsKey("teacher", "contrack"), task="wipe", source="sim")
+    assert sim == lake / "contacts/source=sim/task=wipe/teacher-contrack.parquet"
+    human = ds.human_contacts(lake, {"recording_id": "0123456789abcdef", "task": "pick"})
+    assert human == lake / "contacts/source=human/task=pick/0123456789abcdef.parquet"
+    assert ds.POLICY_EVAL.path(lake, ds.MethodTaskKey("contrack", "pick")) == lake / "policy_eval/contrack-pick.parquet"
+    assert ds.STUDENT_DATASET.path(lake, ds.TaskKey("pick")) == lake / "student_dataset/pick.parquet"
+    layout = DataLayout(tmp_path)
+    assert ds.policy_dataset(layout, "contrack", "pick") == tmp_path / "datasets/contrack-pick"
+    assert ds.lerobot_repo_id("contrack", "pick") == "touch2robot/contrack-pick"
+    key = "0123456789abcdef0123"
+    assert (
+        ds.teacher_checkpoints(layout, "pick", "contrack", key)
+        == tmp_path / "checkpoints/teachers/pick-contrack-0123456789ab"
+    )
+    assert ds.student_checkpoints(layout, "full", key) == tmp_path / "checkpoints/student/full-0123456789ab"
+    assert ds.policy_training(layout, "contrack", "pick", key[:12]) == tmp_path / "policies/contrack-pick-0123456789ab"
+
+
+def test_entries_parse_every_file_and_name_a_stray_one(tmp_path: Path) -> None:
+    lake = tmp_path / "lake"
+    rows = pa.table({"x": [1]})
+    for origin, task, method in (("teacher", "pick", "contrack"), ("kinematic", "drawer", "dex-retargeting")):
+        path = ds.ROLLOUTS.path(lake, ds.RolloutsKey(origin, task), method=method)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        pq.write_table(rows, path)
+    found = [(key, partition) for key, partition, _ in ds.ROLLOUTS.entries(lake)]
+    assert found == [
+        (ds.RolloutsKey("teacher", "pick"), {"method": "contrack"}),
+        (ds.RolloutsKey("kinematic", "drawer"), {"method": "dex-retargeting"}),
+    ]
+    stray = lake / "rollouts" / "method=contrack" / "teacher_pick.parquet"
+    pq.write_table(rows, stray)
+    with pytest.raises(
+        ds.DatasetIdError, match=r"teacher_pick.parquet: 'teacher_pick' is not a \{origin\}-\{task\} id"
+    ):
+        list(ds.ROLLOUTS.entries(lake))
+    stray.unlink()
+    unpartitioned = lake / "rollouts" / "teacher-pick.parquet"
+    pq.write_table(rows, unpartitioned)
+    with pytest.raises(ds.DatasetIdError, match=r"expected lake/rollouts/method=<method>/<id>.parquet"):
+        list(ds.ROLLOUTS.entries(lake))
+
+
+def test_folder_digest_follows_content_not_timestamps(tmp_path: Path) -> None:
+    lake = tmp_path / "lake"
+    table = ds.LAKE["time_map"]
+    rows = pa.table({"recording_id": ["r1"], "t": [0.0], "t_ref": [0.0]})
+    path = table.write(lake, ds.RecordingKey("r1"), rows)
+    before = ds.folder_digest([table.folder(lake)])
+    table.write(lake, ds.RecordingKey("r1"), rows)  # the same rows again: a new file, a new mtime
+    assert ds.folder_digest([table.folder(lake)]) == before
+    table.write(lake, ds.RecordingKey("r1"), rows.set_column(1, "t", pa.array([1.0])))
+    assert ds.folder_digest([table.folder(lake)]) != before
+    assert path.is_file()
+
+
+def test_readiness_finds_the_retargeted_and_taught_demonstrations(demo_lake: Path, tmp_path: Path) -> None:
+    root = tmp_path / "data"
+    shutil.copytree(demo_lake, root)
+    lake = DataLayout(root).lake
+    gloves = ds.glove_sessions(lake)
+    assert [r["file_name"] for r in gloves] == sorted(r["file_name"] for r in gloves) and gloves
+    demos = ds.retargeted_demonstrations(lake)
+    assert [d["recording_id"] for d in demos] == [r["recording_id"] for r in gloves]
+    assert set(demos[0]) == {"recording_id", "task", "subject"}
+    first = demos[0]
+    assert ds.retargeted_demonstrations(lake, [first["task"]]) == [first]
+    ds.RETARGETED.path(lake, ds.RecordingKey(first["recording_id"])).unlink()
+    assert first not in ds.retargeted_demonstrations(lake)
+    assert ds.taught_demonstrations(lake, "touch2robot") == []
+    second = demos[1]
+    ds.ROLLOUTS.write(
+        lake,
+        ds.RolloutsKey("teacher", second["task"]),
+        scripted_rollout_rows(second["task"], "touch2robot", 1, 3),
+        method="touch2robot",
+    )
+    assert ds.taught_demonstrations(lake, "touch2robot") == [second]
+    assert ds.taught_demonstrations(lake, "contrack") == []
