@@ -37,8 +37,8 @@ def _within(name: str, prefixes: tuple[str, ...]) -> bool:
 class TerminalHandler(logging.Handler):
     """A logging handler drawing a flow command's records on ``console`` (see the module docstring).
     Use it as a context manager around the flow: on a terminal it keeps the progress bars live
-    below the printed lines; elsewhere a training's progress is a plain line at most every
-    ``PLAIN_PROGRESS_EVERY_S`` seconds and when it ends."""
+    below the printed lines; elsewhere a training's progress is a plain line when it ends and, while
+    it runs, every ``PLAIN_PROGRESS_EVERY_S`` seconds."""
 
     def __init__(self, console: Console, verbose: bool = False, own_api: bool = False) -> None:
         super().__init__(logging.DEBUG if verbose else logging.INFO)
@@ -112,9 +112,9 @@ class TerminalHandler(logging.Handler):
             return
         label, done, total = line["label"], int(line["done"]), int(line["total"])
         finished = done >= total
-        if not self.live_bars:
+        if not self.live_bars:  # the last line, and one a minute of a training that runs longer
             now = time.monotonic()
-            if finished or now - self._printed_s.get(label, -float("inf")) >= PLAIN_PROGRESS_EVERY_S:
+            if finished or now - self._printed_s.setdefault(label, now) >= PLAIN_PROGRESS_EVERY_S:
                 self._printed_s[label] = now
                 self._print(record)
             return

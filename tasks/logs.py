@@ -29,11 +29,25 @@ QUIET_LIBRARIES = ("httpx", "httpcore", "urllib3", "matplotlib", "PIL", "numba")
 
 class DemotePrints(logging.Filter):
     """Prefect logs what a task run prints (``log_prints``) at INFO; in a task that is library chatter
-    (our tasks log, they do not print): debug level. Flows' prints (their summaries) keep INFO."""
+    (our tasks log, they do not print): debug level. Flows' prints (their summaries) keep INFO. The
+    record names print's caller, so the filter looks for Prefect's print patch on the stack."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        from prefect.logging.loggers import print_as_log
+
+        self._print_code = print_as_log.__code__
 
     def filter(self, record: logging.LogRecord) -> bool:
-        if record.funcName == "print_as_log" and record.levelno == logging.INFO:
-            record.levelno, record.levelname = logging.DEBUG, "DEBUG"
+        if record.levelno == logging.INFO:
+            frame = sys._getframe(1)
+            for _ in range(12):  # logging's own frames, then print_as_log
+                if frame is None:
+                    break
+                if frame.f_code is self._print_code:
+                    record.levelno, record.levelname = logging.DEBUG, "DEBUG"
+                    break
+                frame = frame.f_back
         return True
 
 

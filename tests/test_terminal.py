@@ -86,15 +86,15 @@ def _progress(handler: logging.Handler, message: str) -> None:
     handler.handle(logging.makeLogRecord({"name": logs.PROGRESS_LOGGER, "levelno": logging.INFO, "msg": message}))
 
 
-def test_progress_without_a_terminal_is_a_line_per_minute_and_the_last() -> None:
+def test_progress_without_a_terminal_is_the_last_line_and_one_a_minute() -> None:
     out = io.StringIO()
     with TerminalHandler(Console(file=out, width=200)) as handler:
         for it in range(1, 41):
             _progress(
                 handler, f"teacher pick/touch2robot: iteration {it}/40, mean return {it / 10:.3g}, ETA 0:00:{40 - it}"
             )
-    assert out.getvalue().count("teacher pick/touch2robot") == 2
-    assert "iteration 1/40" in out.getvalue() and "iteration 40/40, mean return 4" in out.getvalue()
+    assert out.getvalue().count("teacher pick/touch2robot") == 1  # a training shorter than a minute
+    assert "iteration 40/40, mean return 4" in out.getvalue()
 
 
 def test_a_workers_run_logs_reach_the_terminal() -> None:
