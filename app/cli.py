@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import os
 import sys
+import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
 
@@ -24,6 +26,26 @@ DataOpt = Annotated[Path | None, typer.Option("--data", "-d", help="data folder 
 ProfileOpt = Annotated[str, typer.Option("--profile", "-p", help="smoke | local | paper | path/to/profile.yaml")]
 
 
+@dataclass
+class _Session:
+    command: str = "touch2robot"
+    verbose: bool = False
+
+
+session = _Session()
+
+
+@app.callback()
+def _options(
+    ctx: typer.Context,
+    verbose: Annotated[
+        bool, typer.Option("--verbose", "-v", help="show every log record (libraries' too), not only the run's own")
+    ] = False,
+) -> None:
+    """Global options, before the command."""
+    session.command, session.verbose = ctx.invoked_subcommand or session.command, verbose
+
+
 def _layout(data: Path | None):
     from app.environment import configure
     from touch2robot.settings import DataLayout
@@ -38,36 +60,51 @@ def _run_flow(entrypoint: str, **parameters: object) -> object:
     (app.local_server: unlike Prefect's temporary server, it cannot outlive a
     killed run). The server starts first and comes up while Prefect and the flow's
     modules are imported. Call after ``_layout``: Prefect reads its settings once, when
-    first imported."""
+    first imported. Every log record goes to <data>/logs/<command>-<time>.log, the terminal
+    shows what app.terminal lets through (all of it with --verbose)."""
     import atexit
     import importlib
 
     from app.local_server import PrefectApi, stop_on_termination
+    from tasks import logs
 
     module, function = entrypoint.split(":")
+    log_file = Path(str(parameters["data"])) / "logs" / f"{session.command}-{time.strftime('%Y%m%d-%H%M%S')}.log"
+    log_file.parent.mkdir(parents=True, exist_ok=True)
+    # for this process and the task runners' workers: MLflow's records go through logging like
+    # every library's instead of MLflow's own handler on stderr
+    os.environ.update({logs.LOG_FILE_ENV: str(log_file), logs.VERBOSE_ENV: "1" if session.verbose else "0"})
+    os.environ.setdefault("MLFLOW_CONFIGURE_LOGGING", "false")
+    console.print(f"[dim]log: {log_file}[/]", highlight=False)
     with stop_on_termination():
         api = None if os.environ.get("PREFECT_API_URL") else PrefectApi(dict(os.environ)).start()
         from prefect.settings import PREFECT_API_URL, get_current_settings, temporary_settings
+
+        from app.terminal import TerminalHandler
 
         settings = get_current_settings()
         if api is not None and settings.api.url:  # the user's Prefect profile names a server
             api.stop()
             api = None
+        terminal = TerminalHandler(console, verbose=session.verbose, own_api=api is not None)
+        logs.configure(str(log_file), terminal)
+        logs.show_worker_logs_with(None if session.verbose else terminal)
         flow = getattr(importlib.import_module(module), function)
-        if api is None:
-            return flow(**parameters)
-        # stopped at exit, after Prefect's log and event workers have sent what they hold
-        # (they drain at thread shutdown, before atexit), as Prefect stops its own server
-        atexit.register(api.stop)
-        url = api.wait_ready(settings.server.ephemeral.startup_timeout_seconds)
-        os.environ["PREFECT_API_URL"] = url  # for processes the flow starts (task runners)
-        # and for threads without the flow's context (a process pool's result and log
-        # forwarding): they read the global settings, made at import, before this URL existed
-        from prefect.context import refresh_global_settings_context
+        with terminal:
+            if api is None:
+                return flow(**parameters)
+            # stopped at exit, after Prefect's log and event workers have sent what they hold
+            # (they drain at thread shutdown, before atexit), as Prefect stops its own server
+            atexit.register(api.stop)
+            url = api.wait_ready(settings.server.ephemeral.startup_timeout_seconds)
+            os.environ["PREFECT_API_URL"] = url  # for processes the flow starts (task runners)
+            # and for threads without the flow's context (a process pool's result and log
+            # forwarding): they read the global settings, made at import, before this URL existed
+            from prefect.context import refresh_global_settings_context
 
-        refresh_global_settings_context()
-        with temporary_settings({PREFECT_API_URL: url}):
-            return flow(**parameters)
+            refresh_global_settings_context()
+            with temporary_settings({PREFECT_API_URL: url}):
+                return flow(**parameters)
 
 
 def _check_profile(profile: str) -> None:
@@ -240,8 +277,20 @@ def run(
     """Run every stage that exists, as one Prefect flow (`pipeline`), on a profile."""
     _check_profile(profile)
     layout = _layout(data)
-    console.print(_run_flow("flows.pipeline:pipeline", profile=profile, data=str(layout.root), synthesize=synthesize))
-    console.print(f"catalog: {layout.catalog}\nMLflow:  touch2robot ui --data {layout.root}")
+    result = _run_flow("flows.pipeline:pipeline", profile=profile, data=str(layout.root), synthesize=synthesize)
+    from flows.pipeline import headline  # imported by now: Prefect after _layout's settings
+
+    table = Table("stage", "headline figures", title=f"pipeline ({profile})", title_justify="left")
+    for stage, figures in headline(result):
+        table.add_row(stage, figures)
+    console.print(table)
+    console.print(
+        f"next:  touch2robot ui --start --data {layout.root}    the MLflow and Prefect UIs of these runs\n"
+        f'       touch2robot sql "SELECT * FROM policy_eval" --data {layout.root}    the tables\n'
+        f"       {layout.root}    the data folder (lake/, checkpoints/, policies/, logs/)",
+        highlight=False,
+        soft_wrap=True,
+    )
 
 
 @app.command(cls=SqlCommand)
@@ -311,7 +360,7 @@ def ui(
 
     layout = _layout(data)
     from app.local_server import StopRequest, answers, spawn_owned, stop_group
-    from touch2robot.tracking import local_uri, tracking_uri
+    from tasks.tracking import local_uri, tracking_uri
 
     # name: (command, health URL, UI URL); a server the user points at is theirs to run
     servers: dict[str, tuple[list[str], str, str]] = {}

@@ -7,6 +7,7 @@ from pathlib import Path
 
 from prefect import flow, unmapped
 
+from tasks import tracking
 from tasks.common import stored
 from tasks.evaluate import (
     evaluate_ratings,
@@ -18,7 +19,6 @@ from tasks.evaluate import (
 )
 from tasks.ingest import refresh_catalog
 from tasks.runners import ProfileTaskRunner
-from touch2robot import tracking
 from touch2robot.datasets import CONTACTS, file_digest, folder_digest
 from touch2robot.evaluate import REFERENCE_SOURCE, evaluated_sources, ratings_files, source_folders
 from touch2robot.metrics import ALL

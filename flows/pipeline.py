@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from statistics import fmean
+
 from prefect import flow
 
 from flows.evaluate import evaluate
@@ -35,3 +37,51 @@ def pipeline(profile: str = "smoke", data: str | None = None, synthesize: bool =
         "evaluate": evaluated,
         "policy": policies,
     }
+
+
+def headline(results: dict) -> list[tuple[str, str]]:
+    """(stage, its headline figures) of a ``pipeline`` result, for the command's closing table: the
+    counts and the figures each stage already returns, a line per stage (per method for the
+    teachers, per variant for the student, per task x method for the policies). A stage that
+    returned nothing has no line."""
+    lines: list[tuple[str, str]] = []
+    if ingested := results.get("ingest"):
+        counts = (ingested["ingested"], ingested["unchanged"], ingested["quarantined"])
+        lines.append(("ingest", "{} ingested, {} unchanged, {} quarantined".format(*counts)))
+    if retargeted := results.get("retarget"):
+        figures = f"{retargeted['recordings']} recordings, {retargeted['frames']} frames"
+        figures += (
+            f" ({retargeted['failed_frames']} failed), fingertip residual {retargeted['residual_mean_mm']:.2f} mm"
+        )
+        lines.append(("retarget", figures))
+    by_method: dict[str, list[dict]] = {}
+    for row in results.get("teachers") or []:
+        by_method.setdefault(row["method"], []).append(row)
+    for method, rows in by_method.items():
+        figures = f"{len(rows)} tasks"
+        if rows[0]["origin"] == "teacher":
+            figures += f", {rows[0]['iterations']} iterations"
+        success, f1 = fmean(r["success_rate"] for r in rows), fmean(r["contact_f1"] for r in rows)
+        lines.append((f"teachers: {method}", f"{figures}, success {success:.2f}, contact F1 {f1:.3f} (task means)"))
+    student = results.get("student") or {}
+    heldout: dict[str, list[dict]] = {}
+    for row in student.get("heldout", []):
+        heldout.setdefault(row["variant"], []).append(row)
+    for trained in student.get("trained", []):
+        figures = f"{trained['steps']} updates, val loss {trained['initial_val_loss']:.4f} -> "
+        figures += f"{trained['final_val_loss']:.4f}"
+        if rows := heldout.get(trained["variant"]):
+            joint, kinematic = (
+                fmean(r["joint_error_student"] for r in rows),
+                fmean(r["joint_error_kinematic"] for r in rows),
+            )
+            figures += f", joint error {joint:.4f} rad (kinematic {kinematic:.4f})"
+            figures += f", contact F1 {fmean(r['contact_f1'] for r in rows):.3f}"
+        lines.append((f"student: {trained['variant']}", figures))
+    if f1_by_source := (results.get("evaluate") or {}).get("f1"):
+        lines.append(("evaluate", "contact F1 " + ", ".join(f"{k} {v:.3f}" for k, v in f1_by_source.items())))
+    for row in results.get("policy") or []:
+        figures = f"success {row['successes']}/{row['episodes']} [{row['ci_low']:.2f}, {row['ci_high']:.2f}]"
+        figures += f", progress {row['mean_progress']:.2f}, final loss {row['final_loss']:.4f}"
+        lines.append((f"policy: {row['task']} x {row['method']}", figures))
+    return lines

@@ -12,9 +12,9 @@ from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
 from schemas.tables import SCHEMAS
+from tasks import tracking
 from tasks.common import ALWAYS_RUN, cache_policy
 from touch2robot import evaluate as ev
-from touch2robot import tracking
 from touch2robot.datasets import EVALUATION_IDS
 from touch2robot.metrics import ALL
 from touch2robot.settings import DataLayout
@@ -118,7 +118,7 @@ def _timelines(lake: Path, reference: str, source: str, method: str, task_name: 
     return paths
 
 
-@task(cache_policy=cache_policy(*_LIBRARY, "touch2robot.tracking"), persist_result=True)
+@task(cache_policy=cache_policy(*_LIBRARY, "tasks.tracking"), persist_result=True)
 def log_evaluation(
     data: str, profile: str, reference: str, contact_metrics: list[dict], onset_summaries: list[dict],
     lake_digest: str, tracking_uri: str,
@@ -169,7 +169,7 @@ def log_evaluation(
     return runs
 
 
-@task(cache_policy=cache_policy(*_LIBRARY, "touch2robot.tracking"), persist_result=True,
+@task(cache_policy=cache_policy(*_LIBRARY, "tasks.tracking"), persist_result=True,
       task_run_name="log-user-study-{ratings_sha256:.12}")  # fmt: skip
 def log_user_study(data: str, profile: str, path: str, ratings_sha256: str, rows: list[dict], tracking_uri: str) -> str:
     """One MLflow run for a ratings file's user study: per-question metrics, the table, a box plot.

@@ -13,8 +13,9 @@ from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
 from schemas.tables import ROBOT_REGIONS
+from tasks import tracking
 from tasks.common import ALWAYS_RUN, cache_policy
-from touch2robot import catalog, datasets, tracking
+from touch2robot import catalog, datasets
 from touch2robot import lake as lake_io
 from touch2robot.contacts import ContactsConfig
 from touch2robot.contacts.extract import human_contacts, replay_contacts

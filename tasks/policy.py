@@ -12,8 +12,10 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_table_artifact
 
+from tasks import tracking
 from tasks.common import ALWAYS_RUN, cache_policy, checkpoint_on_stop, one_torch_thread
-from touch2robot import datasets, tracking
+from tasks.logs import TrainingProgress, both
+from touch2robot import datasets
 from touch2robot.policy import PolicyConfig
 from touch2robot.settings import DataLayout
 from touch2robot.sim.config import SimConfig
@@ -112,13 +114,15 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -
                 "dataset/replay_max_joint_error_rad": dataset["replay_max_joint_error_rad"],
             }
         )
+        progress = TrainingProgress(f"policy {dataset['task']}/{dataset['method']}", "update", config.steps,
+                                    lambda metrics: f"loss {metrics['loss']:.4f}")  # fmt: skip
         with checkpoint_on_stop() as stop_requested:
             result = train(
                 Path(dataset["root"]),
                 dataset["repo_id"],
                 config,
                 out / "lerobot",
-                on_log=tracking.step_logger(run.info.run_id, "train/"),
+                on_log=both(tracking.step_logger(run.info.run_id, "train/"), progress),
                 should_stop=stop_requested,
             )
         if result.steps > result.resumed_from:  # a finished folder resumes with no update to time

@@ -11,8 +11,9 @@ import numpy as np
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
+from tasks import tracking
 from tasks.common import ALWAYS_RUN, cache_policy
-from touch2robot import datasets, tracking
+from touch2robot import datasets
 from touch2robot.retarget import RetargetConfig
 from touch2robot.settings import DataLayout
 

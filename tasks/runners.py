@@ -22,6 +22,7 @@ from prefect.futures import PrefectFuture
 from prefect.settings import PREFECT_API_URL, get_current_settings, temporary_settings
 from prefect.task_runners import ProcessPoolTaskRunner, TaskRunner, ThreadPoolTaskRunner
 
+from tasks.logs import configure_worker, forward_worker_logs
 from touch2robot.config import Profile, load_profile
 from touch2robot.runner_config import RunnerConfig
 
@@ -37,6 +38,13 @@ def exit_with_parent(parent: int) -> None:
         os._exit(1)
 
     threading.Thread(target=watch, name="exit-with-parent", daemon=True).start()
+
+
+def start_worker(parent: int) -> None:
+    """Process-pool worker initializer: ends with the flow process (``exit_with_parent``), logs as
+    the command asked (``tasks.logs.configure_worker``)."""
+    exit_with_parent(parent)
+    configure_worker()
 
 
 def stop_pool_workers(runner: ProcessPoolTaskRunner, grace_s: float = 30.0) -> None:
@@ -76,7 +84,10 @@ def build_task_runner(config: RunnerConfig) -> TaskRunner[Any]:
         return ThreadPoolTaskRunner(max_workers=config.max_workers)
     if config.kind == "processes":
         return ProcessPoolTaskRunner(
-            max_workers=config.max_workers, initializer=exit_with_parent, initargs=(os.getpid(),)
+            max_workers=config.max_workers,
+            initializer=start_worker,
+            initargs=(os.getpid(),),
+            subprocess_message_processor_factories=(forward_worker_logs,),
         )
     try:
         from prefect_dask import DaskTaskRunner

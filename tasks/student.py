@@ -13,8 +13,10 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
+from tasks import tracking
 from tasks.common import ALWAYS_RUN, cache_policy, checkpoint_on_stop, one_torch_thread
-from touch2robot import datasets, tracking
+from tasks.logs import TrainingProgress, both
+from touch2robot import datasets
 from touch2robot.settings import DataLayout
 from touch2robot.student.config import StudentConfig
 from touch2robot.teachers.config import TeacherConfig
@@ -169,6 +171,7 @@ def train_student(
     split = lambda name: windows_from_table(table.filter(pc.equal(table["split"], name)), tasks, cfg.history)  # noqa: E731
     clouds = _clouds(tasks, teacher)
     tracking.experiment(layout, "student")
+    progress = TrainingProgress(f"student {variant}", "update", cfg.steps, _student_loss)
     with mlflow.start_run(run_id=run_id):
         with checkpoint_on_stop() as stop_requested:
             result = train(
@@ -177,7 +180,7 @@ def train_student(
                 clouds,
                 cfg,
                 folder,
-                on_log=tracking.step_logger(run_id),
+                on_log=both(tracking.step_logger(run_id), progress),
                 should_stop=stop_requested,
             )
         mlflow.log_artifact(str(folder / CHECKPOINT), "checkpoints")
@@ -201,6 +204,12 @@ def train_student(
         get_run_logger().info("student %s resumed at update %d of %d", variant, result.resumed_from, result.steps)
     return {"variant": variant, "folder": str(folder), "mlflow_run": run_id, "steps": result.steps, "resumed_from": result.resumed_from,
             "initial_val_loss": result.initial_val["loss"], "final_val_loss": result.final_val["loss"]}  # fmt: skip
+
+
+def _student_loss(metrics: dict[str, float]) -> str:
+    """The progress line's figure: the training loss, the validation loss at the first call."""
+    name = "train/loss" if "train/loss" in metrics else "val/loss"
+    return f"{name.split('/')[0]} loss {metrics[name]:.4f}" if name in metrics else ""
 
 
 @task(

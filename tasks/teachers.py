@@ -10,8 +10,10 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
+from tasks import tracking
 from tasks.common import ALWAYS_RUN, cache_policy, checkpoint_on_stop, one_torch_thread
-from touch2robot import datasets, tracking
+from tasks.logs import TrainingProgress, both
+from touch2robot import datasets
 from touch2robot.settings import DataLayout
 from touch2robot.teachers.config import TeacherConfig
 
@@ -81,7 +83,7 @@ def train_teacher(
     run (stage "teachers"), checkpoints are its artefacts. A killed run resumes from the newest
     checkpoint: the retry, or the next flow run, continues instead of starting over. A stopped run
     (SIGTERM, Ctrl-C) first checkpoints the iteration it is in."""
-    from touch2robot.teachers.train import make_teacher_env, train
+    from touch2robot.teachers.train import WALL_CLOCK_SUFFIX, make_teacher_env, train
 
     one_torch_thread()
     layout = DataLayout.from_env(data)
@@ -98,9 +100,19 @@ def train_teacher(
         layout, "teachers", folder, f"teacher-{task_name}-{method}", tags, _params(config, method)
     )
     vec_env = make_teacher_env(task_name, refs, config, method)
+    mlflow_run = tracking.RunWriter(run_id, tracking.tracking_uri(layout))
+
+    def mean_return(metrics: dict[str, float]) -> str | None:
+        if all(name.endswith(WALL_CLOCK_SUFFIX) for name in metrics):
+            return None
+        return f"mean return {metrics['Train/mean_reward']:.3g}" if "Train/mean_reward" in metrics else ""
+
+    progress = TrainingProgress(f"teacher {task_name}/{method}", "iteration", config.ppo.max_iterations,
+                                mean_return, done=lambda iteration: iteration + 1)  # fmt: skip
     try:
         with checkpoint_on_stop() as stop_requested:
-            result = train(vec_env, config, folder, run_id, tracking.tracking_uri(layout), should_stop=stop_requested)
+            result = train(vec_env, config, folder, on_log=both(mlflow_run.log, progress),
+                           on_checkpoint=mlflow_run.checkpoint, should_stop=stop_requested)  # fmt: skip
     finally:
         vec_env.env.close()
     if result.resumed_from:

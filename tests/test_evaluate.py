@@ -231,7 +231,7 @@ def _table(data: Path, sql: str) -> pd.DataFrame:
 def _evaluate_runs(data: Path) -> pd.DataFrame:
     import mlflow
 
-    from touch2robot import tracking
+    from tasks import tracking
     from touch2robot.settings import DataLayout
 
     exp = tracking.experiment(DataLayout.from_env(data), "evaluate")

@@ -67,7 +67,7 @@ def test_cache_survives_a_new_process(smoke_data: Path, tmp_path: Path) -> None:
     assert rows == 8
     import mlflow
 
-    from touch2robot import tracking
+    from tasks import tracking
 
     runs = mlflow.search_runs(experiment_ids=[tracking.experiment(DataLayout(data), "ingest")])
     assert len(runs) == 2 and (runs["metrics.quarantined"] == 0).all()

@@ -228,7 +228,8 @@ def test_policy_flow_fills_policy_eval_and_mlflow(tmp_path: Path) -> None:
     import mlflow
 
     from flows.policy import policy
-    from touch2robot import catalog, tracking
+    from tasks import tracking
+    from touch2robot import catalog
     from touch2robot.settings import DataLayout
 
     layout = DataLayout(tmp_path / "data")

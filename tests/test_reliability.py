@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 pytestmark = pytest.mark.slow
 
-# The signature of a known defect (a lock in touch2robot.tracking fixes it): two processes
+# The signature of a known defect (a lock in tasks.tracking fixes it): two processes
 # opening a fresh MLflow SQLite store both run its Alembic migrations and one of them fails.
 
 RUN_FLOW = """

@@ -336,7 +336,8 @@ def test_flow_writes_the_table_tracks_and_caches(tmp_path: Path) -> None:
     import mlflow
 
     from flows.retarget import retarget
-    from touch2robot import catalog, tracking
+    from tasks import tracking
+    from touch2robot import catalog
 
     layout = _write_and_ingest(tmp_path / "data", ("drawer",), pace=0.3)
     first = retarget(profile="smoke", data=str(layout.root))

@@ -311,7 +311,7 @@ def test_student_flow_end_to_end(student_lake: Path, tmp_path: Path) -> None:
     import mlflow
 
     from flows.student import student
-    from touch2robot import tracking
+    from tasks import tracking
     from touch2robot.evaluate import contact_metrics_table, evaluated_sources, read_contacts
 
     root = tmp_path / "data"

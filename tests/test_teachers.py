@@ -13,8 +13,8 @@ import torch
 from mlflow.tracking import MlflowClient
 
 from schemas.tables import SCHEMAS
+from tasks import tracking
 from touch2robot import lake as lake_io
-from touch2robot import tracking
 from touch2robot.ingest import recording_rows
 from touch2robot.settings import DataLayout
 from touch2robot.sim.config import SimConfig
@@ -24,7 +24,14 @@ from touch2robot.teachers import rollouts as ro
 from touch2robot.teachers.config import AssistanceConfig, MethodConfig, PPOConfig, TeacherConfig
 from touch2robot.teachers.objective import NUM_ACTIONS, DemoTracking, References, stack_references
 from touch2robot.teachers.reference import ReferenceError, load_reference
-from touch2robot.teachers.train import checkpoints, load_latest, make_teacher_env, runner_config, train
+from touch2robot.teachers.train import (
+    WALL_CLOCK_SUFFIX,
+    checkpoints,
+    load_latest,
+    make_teacher_env,
+    runner_config,
+    train,
+)
 
 SMALL = TeacherConfig(
     sim=SimConfig(n_envs=16),
@@ -238,6 +245,12 @@ def test_teacher_return_rises_with_training(refs: dict[str, References]) -> None
     assert curve[-1] > 1.2 * curve[0]
 
 
+def _into(run_id: str, uri: str) -> dict:
+    """A training's hooks streaming into the MLflow run ``run_id``."""
+    writer = tracking.RunWriter(run_id, uri)
+    return {"on_log": writer.log, "on_checkpoint": writer.checkpoint}
+
+
 @pytest.fixture
 def teacher_run(refs: dict[str, References], tmp_path: Path, one_torch_thread: None):
     """A Wipe teacher's env, an MLflow run for it and its checkpoint folder."""
@@ -251,11 +264,11 @@ def teacher_run(refs: dict[str, References], tmp_path: Path, one_torch_thread: N
 
 def test_training_resumes_from_its_newest_readable_checkpoint(teacher_run) -> None:
     vec_env, run_id, uri, folder = teacher_run
-    first = train(vec_env, SMALL, folder, run_id, uri)
+    first = train(vec_env, SMALL, folder, **_into(run_id, uri))
     assert (first.resumed_from, first.iterations) == (0, 4)
     (folder / "model_9.pt").write_bytes(b"torn by a kill during torch.save")  # newest, unreadable
     longer = SMALL.model_copy(update={"ppo": SMALL.ppo.model_copy(update={"max_iterations": 6})})
-    second = train(vec_env, longer, folder, run_id, uri)
+    second = train(vec_env, longer, folder, **_into(run_id, uri))
     assert (second.resumed_from, second.iterations) == (4, 6)
     steps = [m.step for m in MlflowClient(uri).get_metric_history(run_id, "Loss/learning_rate")]
     assert steps == list(range(6))  # one continuous curve, no iteration trained twice
@@ -269,15 +282,38 @@ def test_a_training_stopped_midway_checkpoints_there_and_resumes(teacher_run) ->
     2nd from 0): the call saves that iteration and returns; the next continues at the third."""
     vec_env, run_id, uri, folder = teacher_run
     asked = iter(range(1, 5))
-    stopped = train(vec_env, SMALL, folder, run_id, uri, should_stop=lambda: next(asked) == 2)
+    stopped = train(vec_env, SMALL, folder, **_into(run_id, uri), should_stop=lambda: next(asked) == 2)
     assert (stopped.resumed_from, stopped.iterations, stopped.checkpoint.name) == (0, 2, "model_1.pt")
     assert [it for it, _ in checkpoints(folder)] == [1, 0]
     history = lambda: [m.step for m in MlflowClient(uri).get_metric_history(run_id, "Loss/learning_rate")]  # noqa: E731
     assert history() == [0, 1]
-    resumed = train(vec_env, SMALL, folder, run_id, uri)
+    resumed = train(vec_env, SMALL, folder, **_into(run_id, uri))
     assert (resumed.resumed_from, resumed.iterations) == (2, 4)
     assert history() == [0, 1, 2, 3]
     assert "checkpoints/model_1.pt" in {a.path for a in MlflowClient(uri).list_artifacts(run_id, "checkpoints")}
+
+
+def test_a_teacher_training_calls_on_log_per_iteration_with_its_metrics(
+    refs: dict[str, References], tmp_path: Path, one_torch_thread: None, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The library's one training hook: ``on_log(iteration, metrics)`` after every iteration with
+    rsl-rl's scalars of it, checkpoints to ``on_checkpoint``; rsl-rl's dump is printed nowhere."""
+    vec_env = make_teacher_env("wipe", refs["wipe"], SMALL, "touch2robot")
+    calls: list[tuple[int, dict[str, float]]] = []
+    saved: list[str] = []
+    try:
+        train(vec_env, SMALL, tmp_path / "teacher", on_log=lambda step, m: calls.append((step, m)),
+              on_checkpoint=saved.append)  # fmt: skip
+    finally:
+        vec_env.env.close()
+    iterations = [(step, m) for step, m in calls if not all(k.endswith(WALL_CLOCK_SUFFIX) for k in m)]
+    assert [step for step, _ in iterations] == list(range(SMALL.ppo.max_iterations))
+    for _, metrics in iterations:
+        assert {"Loss/learning_rate", "Loss/value", "Perf/total_fps", "Policy/mean_std"} <= metrics.keys()
+        assert all(isinstance(v, float) and v == v for v in metrics.values())
+    assert any("Train/mean_reward" in m for _, m in iterations)  # once episodes have ended
+    assert [Path(p).name for p in saved] == ["model_0.pt", "model_2.pt", "model_3.pt"]
+    assert "Learning iteration" not in capsys.readouterr().out
 
 
 def test_load_latest_without_checkpoints(refs: dict[str, References], tmp_path: Path) -> None:

@@ -16,7 +16,8 @@ import pytest
 from conftest import live_processes_with_env
 from mlflow.tracking import MlflowClient
 
-from touch2robot import catalog, tracking
+from tasks import tracking
+from touch2robot import catalog
 from touch2robot.settings import DataLayout
 
 REPO = Path(__file__).resolve().parents[1]

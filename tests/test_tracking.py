@@ -8,9 +8,8 @@ from pathlib import Path
 import mlflow
 from mlflow.tracking import MlflowClient
 
-from touch2robot import tracking
+from tasks import tracking
 from touch2robot.settings import DataLayout
-from touch2robot.teachers.train import MlflowLogWriter
 
 
 def _steps(uri: str, run_id: str, key: str) -> list[int]:
@@ -38,20 +37,16 @@ def test_a_resumed_training_logs_each_step_once(tmp_path: Path) -> None:
     assert mlflow.active_run() is None
 
 
-def test_the_teachers_log_writer_skips_iterations_the_run_holds(tmp_path: Path) -> None:
+def test_the_teachers_run_writer_skips_iterations_the_run_holds(tmp_path: Path) -> None:
     layout = DataLayout(tmp_path / "data")
     with tracking.stage_run(layout, "teachers", "resume") as run:
         run_id = run.info.run_id
     uri = tracking.tracking_uri(layout)
-    before = MlflowLogWriter(None, run_id, uri)
+    before = tracking.RunWriter(run_id, uri)
     for it in range(4):  # killed after iteration 3, checkpoint at 1
-        before.add_scalar("Loss/value", 1.0, it)
-        before.add_scalar("Train/mean_reward", float(it), it)
-    before.stop()
-    after = MlflowLogWriter(None, run_id, uri)
+        before.log(it, {"Loss/value": 1.0, "Train/mean_reward": float(it)})
+    after = tracking.RunWriter(run_id, uri)  # a new process
     for it in range(2, 6):
-        after.add_scalar("Loss/value", 0.5, it)
-        after.add_scalar("Train/mean_reward", float(it), it)
-    after.stop()
+        after.log(it, {"Loss/value": 0.5, "Train/mean_reward": float(it)})
     assert _steps(uri, run_id, "Loss/value") == list(range(6))
     assert _steps(uri, run_id, "Train/mean_reward") == list(range(6))

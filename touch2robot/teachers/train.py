@@ -1,9 +1,12 @@
 """Training a teacher with rsl-rl-lib's OnPolicyRunner: the runner configuration (Table VII),
-an rsl-rl LogWriter that streams every scalar (reward terms, losses, task figures) to one MLflow
-run and uploads each checkpoint to it, and resumption from the last readable checkpoint."""
+an rsl-rl LogWriter that hands every scalar (reward terms, losses, task figures) to the caller's
+``on_log(step, metrics)`` and every checkpoint to its ``on_checkpoint(path)``, and resumption from
+the last readable checkpoint. rsl-rl prints its iteration dump, model summaries and git notices;
+they go to the ``rsl_rl`` logger at debug level instead."""
 
 from __future__ import annotations
 
+import logging
 import pickle
 import re
 from collections.abc import Callable
@@ -11,9 +14,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import rsl_rl.algorithms.ppo
+import rsl_rl.runners.on_policy_runner
+import rsl_rl.utils.logger
 import torch
-from mlflow.entities import Metric
-from mlflow.tracking import MlflowClient
 from rsl_rl.runners import OnPolicyRunner
 from rsl_rl.utils.log_writer import LogWriter
 
@@ -22,9 +26,27 @@ from touch2robot.sim.rsl_env import RslVecEnv
 from touch2robot.sim.scene import build_scene
 from touch2robot.teachers.config import PPOConfig, TeacherConfig
 from touch2robot.teachers.objective import DemoTracking, References
-from touch2robot.tracking import UnloggedSteps
 
 CHECKPOINT = re.compile(r"model_(\d+)\.pt$")
+# rsl-rl logs a wall-clock copy of its return and episode length with the elapsed whole seconds as
+# the step; those names end so (see ``train``'s ``on_log``)
+WALL_CLOCK_SUFFIX = "/time"
+
+OnLog = Callable[[int, dict[str, float]], None]
+OnCheckpoint = Callable[[str], None]
+
+_rsl_rl_log = logging.getLogger("rsl_rl")
+
+
+def _print_to_debug_log(*values: object, sep: str | None = " ", end: str | None = "\n", **_: object) -> None:
+    _rsl_rl_log.debug((sep if sep is not None else " ").join(str(v) for v in values).rstrip())
+
+
+# The modules of rsl-rl that print (a 34-line dump per iteration, the models, the git diff it
+# stores): a module-level ``print`` shadows the builtin for them alone, whatever thread or process
+# trains, where redirecting sys.stdout would catch every other thread's output too.
+for _module in (rsl_rl.utils.logger, rsl_rl.algorithms.ppo, rsl_rl.runners.on_policy_runner):
+    _module.print = _print_to_debug_log  # type: ignore[attr-defined]
 
 
 def runner_config(ppo: PPOConfig, logger: dict | None = None) -> dict:
@@ -66,36 +88,30 @@ def metric_name(tag: str) -> str:
     return re.sub(r"[^A-Za-z0-9_\-. /]", "_", tag).lstrip("/") or "_"
 
 
-class MlflowLogWriter(LogWriter):
-    """rsl-rl LogWriter feeding one MLflow run: scalars are batched per iteration, checkpoints
-    become artefacts under ``checkpoints/``. Uses an explicit client and run id, so teachers
-    training in parallel threads of one process never share MLflow's active-run state."""
+class CallbackLogWriter(LogWriter):
+    """rsl-rl LogWriter handing the scalars of every ``Logger.log`` call to ``on_log(step, metrics)``,
+    one call per step they were logged at (NaN dropped: MLflow rejects it on some stores), and each
+    saved checkpoint's path to ``on_checkpoint``. ``flush`` sends what ``Logger.log`` added."""
 
-    def __init__(self, log_dir: str | None, run_id: str, tracking_uri: str) -> None:
-        self.run_id = run_id
-        self.client = MlflowClient(tracking_uri)
-        self._unlogged = UnloggedSteps(self.client, run_id)  # a resumed run: no iteration drawn twice
-        self._pending: dict[str, float] = {}
-        self._step = -1
+    def __init__(self, log_dir: str | None, on_log: OnLog | None = None, on_checkpoint: OnCheckpoint | None = None):
+        self.on_log, self.on_checkpoint = on_log, on_checkpoint
+        self._pending: dict[int, dict[str, float]] = {}
 
     def add_scalar(self, tag: str, scalar_value: float, global_step: int) -> None:
-        if global_step != self._step:
-            self.flush()
-            self._step = int(global_step)
         value = float(scalar_value)
-        if value == value:  # MLflow rejects NaN only on some stores; skip it everywhere
-            self._pending[metric_name(tag)] = value
+        if value == value:
+            self._pending.setdefault(int(global_step), {})[metric_name(tag)] = value
 
     def flush(self) -> None:
-        """Send the buffered scalars in one request (MLflow's batch limit is 1000)."""
-        metrics = [Metric(k, v, 0, self._step) for k, v in self._unlogged(self._step, self._pending).items()]
-        for i in range(0, len(metrics), 1000):
-            self.client.log_batch(self.run_id, metrics=metrics[i : i + 1000])
-        self._pending = {}
+        pending, self._pending = self._pending, {}
+        if self.on_log is not None:
+            for step, metrics in pending.items():
+                self.on_log(step, metrics)
 
     def save_model(self, model_path: str, it: int) -> None:
         self.flush()
-        self.client.log_artifact(self.run_id, model_path, "checkpoints")
+        if self.on_checkpoint is not None:
+            self.on_checkpoint(model_path)
 
     def stop(self) -> None:
         self.flush()
@@ -140,36 +156,51 @@ class _Stopped(Exception):
     """Raised out of rsl-rl's learning loop after an iteration's logging when a stop was asked."""
 
 
-def _stop_after_logging(runner: OnPolicyRunner, should_stop: Callable[[], bool]) -> None:
-    """rsl-rl's ``learn`` has no stop hook; its logger's ``log`` is the last call of every
-    iteration before the periodic save, so a stop is checked there, once that iteration's update
-    and scalars are done."""
+def _after_logging(runner: OnPolicyRunner, should_stop: Callable[[], bool] | None) -> None:
+    """rsl-rl's ``learn`` has no per-iteration hook; its logger's ``log`` is the last call of every
+    iteration before the periodic save, so the iteration's scalars are sent and a stop is checked
+    there, once that iteration's update is done."""
     log = runner.logger.log
 
     def log_then_check(*args: Any, **kwargs: Any) -> None:
         log(*args, **kwargs)
-        if should_stop():
+        if isinstance(runner.logger.writer, CallbackLogWriter):
+            runner.logger.writer.flush()
+        if should_stop is not None and should_stop():
             raise _Stopped
 
     runner.logger.log = log_then_check
 
 
-def train(vec_env: RslVecEnv, config: TeacherConfig, run_dir: Path, run_id: str, tracking_uri: str,
-          should_stop: Callable[[], bool] | None = None) -> TrainResult:  # fmt: skip
+def train(
+    vec_env: RslVecEnv,
+    config: TeacherConfig,
+    run_dir: Path,
+    on_log: OnLog | None = None,
+    on_checkpoint: OnCheckpoint | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> TrainResult:
     """Train to ``config.ppo.max_iterations`` iterations, continuing from the newest checkpoint in
-    ``run_dir`` if one exists. Every scalar goes to the MLflow run ``run_id``. ``should_stop()``
-    (asked after every iteration) turning true ends the call early with a checkpoint of the
-    iteration just done, from which the next call continues."""
+    ``run_dir`` if one exists. After every iteration ``on_log(iteration, metrics)`` gets rsl-rl's
+    scalars of it (iterations count from 0), then, in a call of their own, its wall-clock copies
+    (names ending ``WALL_CLOCK_SUFFIX``, the step the elapsed whole seconds; merged into the
+    iteration's call when the two steps are equal); ``on_checkpoint(path)`` gets every checkpoint
+    saved. ``should_stop()`` (asked after every iteration) turning true ends the call early with a
+    checkpoint of the iteration just done, from which the next call continues."""
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(config.seed)
-    logger = {"class_name": f"{__name__}:MlflowLogWriter", "run_id": run_id, "tracking_uri": tracking_uri}
+    # rsl-rl deep-copies its logger config: plain functions pass through it as themselves
+    logger = {
+        "class_name": f"{__name__}:CallbackLogWriter",
+        "on_log": None if on_log is None else lambda step, metrics: on_log(step, metrics),
+        "on_checkpoint": None if on_checkpoint is None else lambda path: on_checkpoint(path),
+    }
     runner = OnPolicyRunner(vec_env, runner_config(config.ppo, logger), log_dir=str(run_dir), device=vec_env.device)
     done = load_latest(runner, run_dir) or 0
     runner.current_learning_iteration = done
     remaining = config.ppo.max_iterations - done
-    if should_stop is not None:
-        _stop_after_logging(runner, should_stop)
+    _after_logging(runner, should_stop)
     iterations = max(done, config.ppo.max_iterations)
     if remaining > 0:
         try:

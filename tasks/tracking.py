@@ -1,6 +1,7 @@
 """MLflow tracking: a SQLite file under the data folder by default (or the server named
 by MLFLOW_TRACKING_URI), one experiment per stage with its artefacts stored under the
-data folder, never in the working directory."""
+data folder, never in the working directory; and the ``on_log`` hooks that stream a training's
+figures into its run (the library trains without MLflow)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from contextlib import contextmanager, nullcontext
 from pathlib import Path
 
 import mlflow
+from mlflow.entities import Metric
 
 from touch2robot.settings import DataLayout
 
@@ -139,3 +141,24 @@ def step_logger(run_id: str, prefix: str = "") -> Callable[[int, dict[str, float
             mlflow.log_metrics(fresh, step=step, run_id=run_id)
 
     return log
+
+
+class RunWriter:
+    """A teacher training's ``on_log`` (``log``) and ``on_checkpoint`` (``checkpoint``: an artefact
+    under ``checkpoints/``) for one MLflow run, through an explicit client and run id, so trainings
+    in parallel threads of one process never share MLflow's active-run state. Steps the run holds
+    already are skipped (``UnloggedSteps``); a step's metrics go in one request (MLflow's batch
+    limit is 1000)."""
+
+    def __init__(self, run_id: str, tracking_uri: str) -> None:
+        self.run_id = run_id
+        self.client = mlflow.MlflowClient(tracking_uri)
+        self._unlogged = UnloggedSteps(self.client, run_id)
+
+    def log(self, step: int, metrics: dict[str, float]) -> None:
+        batch = [Metric(k, v, 0, step) for k, v in self._unlogged(step, metrics).items()]
+        for i in range(0, len(batch), 1000):
+            self.client.log_batch(self.run_id, metrics=batch[i : i + 1000])
+
+    def checkpoint(self, path: str) -> None:
+        self.client.log_artifact(self.run_id, path, "checkpoints")
