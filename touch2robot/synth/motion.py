@@ -15,8 +15,7 @@ import numpy as np
 
 from schemas.glove import FINGERTIP_TAXELS, PALM_TAXELS
 from touch2robot import geometry
-from touch2robot.scenes import TaskSpec
-from touch2robot.scenes.spec import GeomSpec
+from touch2robot.scenes.spec import GeomSpec, TaskSpec
 from touch2robot.synth.hand import HumanHand, taxel_forces
 
 GRID_HZ = 500.0
