@@ -10,6 +10,8 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pytest
+
 from touch2robot import scenes
 
 # A toy task in one module: slide a puck to a goal under the flat palm. Nothing else is edited.
@@ -18,8 +20,8 @@ TOY_MODULE = '''
 
 import numpy as np
 
+from touch2robot.scenes.base import SuccessCriterion, Task
 from touch2robot.scenes.spec import GeomSpec, ObjectSpec, TaskSpec
-from touch2robot.scenes.task import SuccessCriterion, Task
 from touch2robot.synth.demos import Q_FLAT, offset, yaw
 from touch2robot.synth.motion import _Builder
 
@@ -123,6 +125,16 @@ def test_suite_order_is_fixed() -> None:
     assert scenes.TASKS == ("pick", "rotate", "wipe", "drawer")
     assert [scenes.task(t).position for t in scenes.TASKS] == [0, 1, 2, 3]
     assert all(scenes.get(t).name == t for t in scenes.TASKS)
+
+
+@pytest.mark.parametrize(
+    "module", ["touch2robot.geometry", "touch2robot.synth.motion", "touch2robot.synth.demos", "touch2robot.scenes.spec"]
+)
+def test_the_building_blocks_of_task_modules_import_first(module: str) -> None:
+    """Importing touch2robot.scenes imports every task module, so what they import must not import the
+    package back at run time (it would meet itself half initialised)."""
+    probe = subprocess.run([sys.executable, "-c", f"import {module}"], capture_output=True, text=True, timeout=300)
+    assert probe.returncode == 0, probe.stderr[-3000:]
 
 
 def test_a_new_task_module_is_registered_everywhere(tmp_path: Path) -> None:

@@ -4,9 +4,12 @@ for MuJoCo-style primitives (box / cylinder / sphere / capsule)."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from touch2robot.scenes.spec import GeomSpec
+if TYPE_CHECKING:  # at run time importing touch2robot.scenes would discover the task modules, which use this one
+    from touch2robot.scenes.spec import GeomSpec
 
 
 def quat_to_mat(q: np.ndarray) -> np.ndarray:

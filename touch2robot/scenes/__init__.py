@@ -1,6 +1,6 @@
 """The task suite: one module per task, discovered, so that adding a task is adding one module.
 
-A task module declares ``TASK = Task(...)`` (``touch2robot.scenes.task``): its scene spec
+A task module declares ``TASK = Task(...)`` (``touch2robot.scenes.base``): its scene spec
 (``default_config()``, the single source of truth shared by the demonstrator and the MuJoCo scenes),
 its success criterion, its scripted human demonstration and its language instruction. Every module
 of this package that declares a ``TASK`` is registered; ``TASKS`` lists them in suite order.
@@ -9,8 +9,8 @@ of this package that declares a ``TASK`` is registered; ``TASKS`` lists them in 
 import importlib
 import pkgutil
 
+from touch2robot.scenes.base import SuccessCriterion, Task
 from touch2robot.scenes.spec import GeomSpec, ObjectSpec, SlideSpec, TaskSpec
-from touch2robot.scenes.task import SuccessCriterion, Task
 
 
 def _discover() -> dict[str, Task]:

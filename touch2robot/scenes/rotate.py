@@ -7,8 +7,8 @@ import math
 import numpy as np
 
 from touch2robot.geometry import twist_angle, wrap_angle
+from touch2robot.scenes.base import SuccessCriterion, Task
 from touch2robot.scenes.spec import GeomSpec, ObjectSpec, TaskSpec
-from touch2robot.scenes.task import SuccessCriterion, Task
 from touch2robot.synth.demos import Q_CLOSE, Q_OPEN, offset, skin_depths, yaw
 from touch2robot.synth.hand import HumanHand
 from touch2robot.synth.motion import Scene, Trajectory, _Builder, close_fingers

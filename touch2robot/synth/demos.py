@@ -7,6 +7,7 @@ otherwise, and the drawer moves only along its slide within its range."""
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from touch2robot import geometry
 
@@ -21,7 +22,7 @@ def yaw(angle: float) -> np.ndarray:
     return geometry.quat_from_axis_angle(np.array([0.0, 0.0, 1.0]), angle)
 
 
-def offset(pos: np.ndarray, quat: np.ndarray, local: np.ndarray) -> np.ndarray:
+def offset(pos: np.ndarray, quat: np.ndarray, local: ArrayLike) -> np.ndarray:
     """The point at ``local`` in the frame of pose (``pos``, ``quat``), in the parent frame."""
     return pos + geometry.quat_to_mat(quat) @ np.asarray(local, float)
 

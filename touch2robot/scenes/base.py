@@ -1,4 +1,5 @@
-"""What a task module declares: its ``TASK``, and the success criterion the simulation asks it for."""
+"""What a task module of ``touch2robot.scenes`` declares: its ``TASK``, and the success criterion the simulation
+asks it for."""
 
 from __future__ import annotations
 
