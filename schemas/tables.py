@@ -23,8 +23,6 @@ PALM_REGIONS: tuple[str, ...] = ("P1", "P2", "P3", "P4")
 # Contact sources appended to the `contacts` table by the stages.
 CONTACT_SOURCES: tuple[str, ...] = ("human", "sim", "real", "reconstructed")
 
-TASKS: tuple[str, ...] = ("pick", "rotate", "wipe", "drawer")
-
 RECORDING_KINDS: tuple[str, ...] = ("glove_session", "robot_replay", "robot_calibration")
 
 

@@ -17,12 +17,12 @@ import torch
 from conftest import scripted_rollout_rows
 
 from touch2robot import lake as lake_io
+from touch2robot import scenes
 from touch2robot.config import load_profile
 from touch2robot.policy.config import VIDEO_BACKEND
 from touch2robot.policy.dataset import (
     ACTION_NAMES,
     STATE_NAMES,
-    TASK_INSTRUCTIONS,
     RolloutError,
     build_dataset,
     common_demonstrations,
@@ -137,7 +137,7 @@ def test_dataset_round_trips_through_lerobots_loader(dataset) -> None:
     assert ds.meta.features["action"]["names"] == list(ACTION_NAMES)
     frame = ds[31]  # episode 1, step 1
     assert frame["episode_index"] == 1 and frame["frame_index"] == 1
-    assert frame["task"] == TASK_INSTRUCTIONS["pick"]
+    assert frame["task"] == scenes.task("pick").instruction
     assert frame["observation.images.cam_left"].shape == (3, CONFIG.image_size, CONFIG.image_size)
     assert frame["observation.images.cam_right"].std() > 0.01  # a rendered scene, not a blank
     r = rollouts[1]

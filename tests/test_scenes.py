@@ -11,10 +11,11 @@ import numpy as np
 import pytest
 
 from touch2robot import scenes
-from touch2robot.geometry import body_sdf, quat_from_axis_angle
+from touch2robot.geometry import body_sdf, quat_from_axis_angle, twist_angle
+from touch2robot.scenes.pick import PickSuccess
 from touch2robot.sim.config import SimConfig
 from touch2robot.sim.scene import CAMERAS, Scene, build_scene
-from touch2robot.sim.success import SuccessTracker, twist_angle
+from touch2robot.sim.success import SuccessTracker
 
 TASKS = tuple(scenes.REGISTRY)
 
@@ -199,5 +200,6 @@ def test_pick_box_can_be_grasped_and_lifted_by_the_servos() -> None:
         else:  # lift 10 cm
             wrist, q = at_box + [0, 0, 0.10 * min((k - 55) / 20, 1.0)], q_close
         env.step(q[None], wrist[None])
-    assert env.tracker.max_lift[0] > scenes.get("pick").success["lift_m"]
+    criterion = env.tracker.criterion
+    assert isinstance(criterion, PickSuccess) and criterion.max_lift[0] > scenes.get("pick").success["lift_m"]
     assert env.region_contact[0, 0] and env.region_contact[0, 1:3].any()  # held by thumb and fingers

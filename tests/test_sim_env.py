@@ -141,8 +141,7 @@ def test_reset_to_a_given_pose_reads_its_sensors() -> None:
 
 
 def test_wrist_follows_a_world_pose_trajectory() -> None:
-    from touch2robot.geometry import quat_from_axis_angle, quat_mul
-    from touch2robot.sim.success import twist_angle
+    from touch2robot.geometry import quat_from_axis_angle, quat_mul, twist_angle
 
     env = _env("pick", n=1)
     start, quat0 = env.scene.home_wrist_pos, env.scene.home_wrist_quat

@@ -30,6 +30,7 @@ import pyarrow as pa
 
 from schemas import tables
 from touch2robot import lake as lake_io
+from touch2robot import scenes
 from touch2robot.ingest import recording_rows
 from touch2robot.ingest.scan import Scan, find_recordings
 from touch2robot.settings import DataLayout
@@ -59,7 +60,7 @@ def one_of(values: Callable[[], Sequence[str]]) -> Part:
 NAME = Part(lambda: r"[A-Za-z0-9_][A-Za-z0-9_.-]*", lambda: "a name of letters, digits, '_', '.', '-'")
 CONFIG_KEY = Part(lambda: r"[0-9a-f]{12}", lambda: "12 hex digits (a configuration digest)")
 
-TASK = one_of(lambda: tables.TASKS)
+TASK = one_of(lambda: scenes.TASKS)
 ORIGIN = one_of(lambda: tables.ROLLOUT_ORIGINS)
 _FIELD = re.compile(r"\{(\w+)\}")
 

@@ -4,9 +4,12 @@ for MuJoCo-style primitives (box / cylinder / sphere / capsule)."""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from touch2robot.scenes.spec import GeomSpec
+if TYPE_CHECKING:  # at run time importing touch2robot.scenes would discover the task modules, which use this one
+    from touch2robot.scenes.spec import GeomSpec
 
 
 def quat_to_mat(q: np.ndarray) -> np.ndarray:
@@ -93,6 +96,46 @@ def quat_from_axis_angle(axis: np.ndarray, angle: np.ndarray | float) -> np.ndar
     axis = axis / np.linalg.norm(axis)
     half = 0.5 * np.asarray(angle, dtype=np.float64)[..., None]
     return np.concatenate([np.cos(half), np.sin(half) * axis], axis=-1)
+
+
+def quat_conj(q: np.ndarray) -> np.ndarray:
+    """Conjugate (= inverse for unit quaternions) of (..., 4) quaternions (w, x, y, z)."""
+    return np.asarray(q) * np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def quat_from_rotvec(v: np.ndarray) -> np.ndarray:
+    """(N, 4) unit quaternions of axis x angle vectors (N, 3); a zero vector gives the identity
+    (unlike ``quat_from_axis_angle``, each row has its own axis)."""
+    angle = np.linalg.norm(v, axis=1, keepdims=True)
+    half = 0.5 * angle
+    axis = v / np.maximum(angle, 1e-12)
+    return np.concatenate([np.cos(half), np.sin(half) * axis], axis=1)
+
+
+def rotvec(q: np.ndarray) -> np.ndarray:
+    """(N, 3) axis x angle of unit quaternions (shortest rotation)."""
+    q = np.where(q[:, :1] < 0, -q, q)
+    s = np.linalg.norm(q[:, 1:], axis=1, keepdims=True)
+    angle = 2.0 * np.arctan2(s, q[:, :1])
+    return q[:, 1:] * np.where(s > 1e-9, angle / np.maximum(s, 1e-12), 2.0)
+
+
+def quat_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(N,) rotation angle between unit quaternions."""
+    return 2.0 * np.arccos(np.clip(np.abs(np.sum(a * b, axis=-1)), 0.0, 1.0))
+
+
+def twist_angle(quat: np.ndarray, quat0: np.ndarray, axis: np.ndarray) -> np.ndarray:
+    """Signed angle (rad, in (-pi, pi]) of the rotation from ``quat0`` to ``quat`` (world frame)
+    about the world ``axis`` (swing-twist decomposition: the tilt about other axes is ignored)."""
+    rel = quat_mul(np.asarray(quat), quat_conj(np.asarray(quat0)))
+    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    return 2.0 * np.arctan2(rel[..., 1:] @ axis, rel[..., 0])
+
+
+def wrap_angle(angle: np.ndarray) -> np.ndarray:
+    """Angles wrapped to (-pi, pi]."""
+    return np.angle(np.exp(1j * np.asarray(angle)))
 
 
 def transform_points(points: np.ndarray, pos: np.ndarray, quat: np.ndarray) -> np.ndarray:

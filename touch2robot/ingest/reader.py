@@ -21,9 +21,9 @@ from mcap.stream_reader import StreamReader
 
 from schemas import plausibility as plaus
 from schemas.messages import MESSAGE_ENCODING, METADATA_KEYS, METADATA_NAME, SCHEMA_VERSION, TOPICS_BY_KIND, Topic
-from schemas.tables import TASKS
 from schemas.vocabulary import Method
 from touch2robot.recording.cdr import Batch, CdrError, decode_batch
+from touch2robot.scenes import TASKS
 
 
 class RecordingError(ValueError):

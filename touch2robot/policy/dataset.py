@@ -32,10 +32,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from schemas.tables import ROBOT_REGIONS, ROLLOUT_ORIGINS, TASKS
+from schemas.tables import ROBOT_REGIONS, ROLLOUT_ORIGINS
+from touch2robot import scenes
 from touch2robot.datasets import ROLLOUTS, lerobot_repo_id
 from touch2robot.leap import description as hd
 from touch2robot.policy.config import VIDEO_BACKEND, PolicyConfig
+from touch2robot.scenes import TASKS
 
 # the GL backend is chosen when this is imported, before mujoco: keep it first
 from touch2robot.sim import render as _render  # noqa: F401
@@ -48,12 +50,6 @@ ROBOT_TYPE = "leap_hand_floating_wrist"
 WRIST_NAMES = ("wrist_px", "wrist_py", "wrist_pz", "wrist_qw", "wrist_qx", "wrist_qy", "wrist_qz")
 STATE_NAMES = (*hd.JOINT_NAMES, *WRIST_NAMES)
 ACTION_NAMES = (*(f"{j}_target" for j in hd.JOINT_NAMES), *(f"{w}_cmd" for w in WRIST_NAMES))
-TASK_INSTRUCTIONS = {
-    "pick": "pick up the box and place it at the goal",
-    "rotate": "rotate the object about the vertical axis",
-    "wipe": "wipe the table along the marked path",
-    "drawer": "pull the drawer open",
-}
 # which rollouts of a task x method become its demonstrations, best first
 ORIGIN_PREFERENCE = ("student", "teacher", "kinematic")
 assert set(ORIGIN_PREFERENCE) == set(ROLLOUT_ORIGINS)
@@ -318,7 +314,7 @@ def build_dataset(
     root.parent.mkdir(parents=True, exist_ok=True)
     tmp = root.with_name(f".{root.name}.{uuid.uuid4().hex[:8]}.tmp")
     repo_id = lerobot_repo_id(method, task)
-    instruction = TASK_INSTRUCTIONS[task]
+    instruction = scenes.task(task).instruction
     errors: list[np.ndarray] = []
     renderer = CameraRenderer(scene, cfg.cameras, cfg.image_size)
     try:

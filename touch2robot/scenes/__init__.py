@@ -1,24 +1,62 @@
-"""Task scenes: one module per task with ``default_config()``, and a registry by name."""
+"""The task suite: one module per task, discovered, so that adding a task is adding one module.
 
-from collections.abc import Callable
+A task module declares ``TASK = Task(...)`` (``touch2robot.scenes.base``): its scene spec
+(``default_config()``, the single source of truth shared by the demonstrator and the MuJoCo scenes),
+its success criterion, its scripted human demonstration and its language instruction. Every module
+of this package that declares a ``TASK`` is registered; ``TASKS`` lists them in suite order.
+"""
 
-from touch2robot.scenes import drawer, pick, rotate, wipe
+import importlib
+import pkgutil
+
+from touch2robot.scenes.base import SuccessCriterion, Task
 from touch2robot.scenes.spec import GeomSpec, ObjectSpec, SlideSpec, TaskSpec
 
-REGISTRY: dict[str, Callable[[], TaskSpec]] = {
-    "pick": pick.default_config,
-    "rotate": rotate.default_config,
-    "wipe": wipe.default_config,
-    "drawer": drawer.default_config,
-}
+
+def _discover() -> dict[str, Task]:
+    """Every ``TASK`` declared by a module of this package, by name, in suite order."""
+    found: list[Task] = []
+    for module_info in pkgutil.iter_modules(__path__, prefix=f"{__name__}."):
+        declared = getattr(importlib.import_module(module_info.name), "TASK", None)
+        if isinstance(declared, Task):
+            found.append(declared)
+    found.sort(key=lambda t: t.position)
+    for name, values in (("name", [t.name for t in found]), ("position", [t.position for t in found])):
+        if len(set(values)) != len(values):
+            raise ValueError(f"task modules share a {name}: {values}")
+    for t in found:
+        if t.default_config().name != t.name:
+            raise ValueError(f"task {t.name!r}: its default_config() is named {t.default_config().name!r}")
+    return {t.name: t for t in found}
 
 
-def get(name: str) -> TaskSpec:
-    """The spec of a task by name; raises ValueError listing the known tasks."""
+REGISTRY: dict[str, Task] = _discover()
+# The suite's order: a task's index seeds the demonstrator's random streams and orders every output.
+TASKS: tuple[str, ...] = tuple(REGISTRY)
+
+
+def task(name: str) -> Task:
+    """A task by name; raises ValueError listing the known tasks."""
     try:
-        return REGISTRY[name]()
+        return REGISTRY[name]
     except KeyError:
         raise ValueError(f"unknown task {name!r}; known tasks: {', '.join(REGISTRY)}") from None
 
 
-__all__ = ["REGISTRY", "GeomSpec", "ObjectSpec", "SlideSpec", "TaskSpec", "get"]
+def get(name: str) -> TaskSpec:
+    """The spec of a task by name; raises ValueError listing the known tasks."""
+    return task(name).default_config()
+
+
+__all__ = [
+    "REGISTRY",
+    "TASKS",
+    "GeomSpec",
+    "ObjectSpec",
+    "SlideSpec",
+    "SuccessCriterion",
+    "Task",
+    "TaskSpec",
+    "get",
+    "task",
+]

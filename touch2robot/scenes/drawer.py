@@ -1,6 +1,14 @@
 """Drawer: grasp the handle and pull the drawer open along its slide."""
 
+from __future__ import annotations
+
+import numpy as np
+
+from touch2robot.scenes.base import SuccessCriterion, Task
 from touch2robot.scenes.spec import GeomSpec, ObjectSpec, SlideSpec, TaskSpec
+from touch2robot.synth.demos import Q_CLOSE, Q_OPEN, offset, skin_depths
+from touch2robot.synth.hand import HumanHand
+from touch2robot.synth.motion import Scene, Trajectory, _Builder, close_fingers
 
 # Drawer body frame at the centre of its front panel; it slides along world -x (towards the hand).
 FRONT = GeomSpec("box", (0.01, 0.09, 0.04), name="front")
@@ -40,3 +48,48 @@ def default_config() -> TaskSpec:
         # success: drawer opened at least this far along its slide
         success={"opening_m": 0.12},
     )
+
+
+class DrawerSuccess(SuccessCriterion):
+    """The opening along the slide reaches ``opening_m``; progress is the opening's share of it."""
+
+    def update(
+        self, pos0: np.ndarray, quat0: np.ndarray, pos: np.ndarray, quat: np.ndarray, opening: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        target = self.spec.success["opening_m"]
+        return opening >= target, np.clip(opening / target, 0.0, 1.0)
+
+
+def demonstrate(spec: TaskSpec, hand: HumanHand, rng: np.random.Generator, pace: float) -> Trajectory:
+    """Reach the handle palm-forward, hook the fingers round it and pull along the slide."""
+    scene = Scene.from_task(spec)
+    obj_pos = np.asarray(spec.object.init_pos, float)
+    obj_quat = np.array([1.0, 0.0, 0.0, 0.0])
+    # hand frame: fingers pointing down in front of the handle, palm facing +x (the drawer):
+    # a half-turn about (1, 0, -1)/sqrt(2) maps hand x -> world -z and hand -z -> world +x
+    hand_quat = np.array([0.0, np.sqrt(0.5), 0.0, -np.sqrt(0.5)])
+    handle = offset(obj_pos, obj_quat, spec.object.geoms[1].pos)
+    grasp = handle + np.array([-0.026, 0.0, 0.13 * hand.scale])
+    b = _Builder(grasp + [-0.10, 0.0, 0.03], hand_quat, Q_OPEN, obj_pos, obj_quat)
+    b.hold(0.3 * pace)
+    b.phase(1.2 * pace, wrist_pos=grasp)
+    q = close_fingers(
+        hand, scene, grasp, hand_quat, obj_pos, obj_quat, Q_OPEN, Q_CLOSE, skin_depths(rng), fingers=(1, 2, 3, 4, 0)
+    )
+    b.phase(0.6 * pace, joints=q)
+    opening = rng.uniform(0.13, min(0.17, spec.slide.range[1]))
+    b.carry(2.0 * pace, obj_pos + opening * np.asarray(spec.slide.axis), obj_quat)
+    b.hold(0.3 * pace)
+    b.phase(0.6 * pace, joints=Q_OPEN)
+    b.phase(1.0 * pace, wrist_pos=b.state[1] + [-0.08, 0.0, 0.0])
+    return b.build()
+
+
+TASK = Task(
+    name="drawer",
+    position=3,
+    instruction="pull the drawer open",
+    default_config=default_config,
+    demonstrate=demonstrate,
+    criterion=DrawerSuccess,
+)

@@ -51,7 +51,7 @@ class SlideSpec:
 
 @dataclass(frozen=True)
 class TaskSpec:
-    """Everything task-specific: object, goal and success criterion, episode length."""
+    """Everything task-specific in the scene: object, goal, success parameters, episode length."""
 
     name: str
     object: ObjectSpec

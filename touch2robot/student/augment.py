@@ -21,7 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow as pa
 
-from schemas.tables import SCHEMAS, TASKS
+from schemas.tables import SCHEMAS
+from touch2robot.scenes import TASKS
 from touch2robot.teachers.reference import DemoReference
 from touch2robot.teachers.rollouts import column
 

@@ -18,9 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from touch2robot.geometry import quat_mul
-from touch2robot.sim.success import quat_conj
-from touch2robot.teachers.objective import quat_from_rotvec, rotvec
+from touch2robot.geometry import quat_conj, quat_from_rotvec, quat_mul, rotvec
 from touch2robot.teachers.reference import DemoReference
 
 JOINTS = slice(0, 16)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from schemas.tables import TASKS
+from touch2robot.scenes import TASKS
 
 
 class SynthConfig(BaseModel):

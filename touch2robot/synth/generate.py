@@ -15,12 +15,11 @@ import pyarrow.parquet as pq
 
 from schemas.glove import GLOVE_JOINT_NAMES, TAXEL_REGION
 from schemas.messages import LEAP_JOINT_NAMES
-from schemas.tables import HUMAN_REGIONS, ROBOT_REGIONS, TASKS
+from schemas.tables import HUMAN_REGIONS, ROBOT_REGIONS
 from touch2robot import geometry, scenes
 from touch2robot.recording import cdr
 from touch2robot.recording.writer import RecordingWriter
 from touch2robot.synth.config import SynthConfig
-from touch2robot.synth.demos import SCRIPTS
 from touch2robot.synth.hand import HumanHand
 from touch2robot.synth.motion import Scene, Trajectory, taxel_forces_along
 from touch2robot.synth.sensors import TwinTac, fsr_readings, glove_readings
@@ -71,15 +70,16 @@ def plan(config: SynthConfig) -> list[RecordingJob]:
 
 
 def _rng(config: SynthConfig, job: RecordingJob, stream: int) -> np.random.Generator:
-    return np.random.default_rng([config.seed, TASKS.index(job.task), job.subject, job.demo, stream])
+    return np.random.default_rng([config.seed, scenes.TASKS.index(job.task), job.subject, job.demo, stream])
 
 
 def _demonstration(config: SynthConfig, job: RecordingJob) -> tuple[HumanHand, Trajectory, Scene]:
-    spec = scenes.get(job.task)
+    task = scenes.task(job.task)
+    spec = task.default_config()
     subject_rng = np.random.default_rng([config.seed, 1000 + job.subject])
     hand = HumanHand(scale=subject_rng.uniform(0.92, 1.08))
     rng = _rng(config, job, 0)
-    traj = SCRIPTS[job.task](spec, hand, rng, config.pace * rng.uniform(0.9, 1.1))
+    traj = task.demonstrate(spec, hand, rng, config.pace * rng.uniform(0.9, 1.1))
     return hand, traj, Scene.from_task(spec)
 
 

@@ -10,14 +10,16 @@ contact in the data is one the hand geometry really makes.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from schemas.glove import FINGERTIP_TAXELS, PALM_TAXELS
 from touch2robot import geometry
-from touch2robot.scenes import TaskSpec
-from touch2robot.scenes.spec import GeomSpec
 from touch2robot.synth.hand import HumanHand, taxel_forces
+
+if TYPE_CHECKING:  # at run time importing touch2robot.scenes would discover the task modules, which use this one
+    from touch2robot.scenes.spec import GeomSpec, TaskSpec
 
 GRID_HZ = 500.0
 

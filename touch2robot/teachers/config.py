@@ -11,7 +11,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from schemas.tables import TASKS
+from touch2robot.scenes import TASKS
 from touch2robot.sim.config import SimConfig
 
 TeacherMethod = Literal["touch2robot", "contrack", "dexmachina"]

@@ -25,9 +25,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from touch2robot.geometry import quat_mul, quat_to_mat
+from touch2robot.geometry import quat_angle, quat_conj, quat_from_rotvec, quat_mul, quat_to_mat, rotvec
 from touch2robot.sim.env import BatchEnv
-from touch2robot.sim.success import quat_conj
 from touch2robot.teachers.config import MethodConfig, TeacherConfig
 from touch2robot.teachers.reference import DemoReference
 
@@ -36,14 +35,6 @@ JOINT_ACTIONS = slice(0, 16)
 WRIST_POS_ACTIONS = slice(16, 19)
 WRIST_ROT_ACTIONS = slice(19, 22)
 NUM_ACTIONS = 22
-
-
-def quat_from_rotvec(v: np.ndarray) -> np.ndarray:
-    """(N, 4) unit quaternions of axis x angle vectors (N, 3)."""
-    angle = np.linalg.norm(v, axis=1, keepdims=True)
-    half = 0.5 * angle
-    axis = v / np.maximum(angle, 1e-12)
-    return np.concatenate([np.cos(half), np.sin(half) * axis], axis=1)
 
 
 class References(NamedTuple):
@@ -92,19 +83,6 @@ def stack_references(refs: list[DemoReference]) -> References:
         geo_contact=pad(lambda r: r.geo_contact),
         geo_point=pad(lambda r: np.nan_to_num(r.geo_point)),
     )
-
-
-def quat_angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(N,) rotation angle between unit quaternions."""
-    return 2.0 * np.arccos(np.clip(np.abs(np.sum(a * b, axis=-1)), 0.0, 1.0))
-
-
-def rotvec(q: np.ndarray) -> np.ndarray:
-    """(N, 3) axis x angle of unit quaternions (shortest rotation)."""
-    q = np.where(q[:, :1] < 0, -q, q)
-    s = np.linalg.norm(q[:, 1:], axis=1, keepdims=True)
-    angle = 2.0 * np.arctan2(s, q[:, :1])
-    return q[:, 1:] * np.where(s > 1e-9, angle / np.maximum(s, 1e-12), 2.0)
 
 
 def step_f1(sim: np.ndarray, ref: np.ndarray) -> np.ndarray:
