@@ -13,7 +13,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from schemas.glove import GLOVE_JOINT_NAMES, TAXEL_REGION
+from schemas.glove import GLOVE_JOINT_NAMES, region_taxels
 from schemas.messages import LEAP_JOINT_NAMES
 from schemas.tables import HUMAN_REGIONS, ROBOT_REGIONS, TASKS
 from touch2robot import geometry, scenes
@@ -27,7 +27,7 @@ from touch2robot.synth.sensors import TwinTac, fsr_readings, glove_readings
 
 EPOCH_NS = 1_767_225_600 * 10**9  # 2026-01-01T00:00:00Z: recordings start from here
 CONTACT_N = 0.5
-_REGION_IDX = {r: np.flatnonzero(np.asarray(TAXEL_REGION) == r) for r in HUMAN_REGIONS}
+_REGION_IDX = {r: region_taxels(r) for r in HUMAN_REGIONS}
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,6 @@ from schemas.tables import TASKS
 from touch2robot.sim.config import SimConfig
 
 TeacherMethod = Literal["touch2robot", "contrack", "dexmachina"]
-TEACHER_METHODS: tuple[str, ...] = ("touch2robot", "contrack", "dexmachina")
 
 
 class _Frozen(BaseModel):
