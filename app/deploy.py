@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 from uuid import UUID
 
-import flows  # noqa: F401  # isort: skip  configures the environment before Prefect is imported
+import flows as _configures_environment  # noqa: F401  # isort: skip  before Prefect is imported
 import yaml
 from prefect import Flow, get_client
 from prefect.client.schemas.actions import WorkPoolCreate

@@ -310,7 +310,7 @@ def test_flow_logs_mlflow_runs_and_figures(evaluated: tuple[Path, dict]) -> None
     )
     client = mlflow.MlflowClient()
     pick = method_runs[method_runs["params.task"] == "pick"]["run_id"].iloc[0]
-    assert [a.path for a in client.list_artifacts(pick, "contact_timelines")][0].endswith(".png")
+    assert next(a.path for a in client.list_artifacts(pick, "contact_timelines")).endswith(".png")
     summary = runs[runs["tags.kind"] == "summary"]["run_id"].iloc[0]
     assert "metrics_by_method.png" in {a.path for a in client.list_artifacts(summary)}
     assert set(result["runs"].values()) == set(runs["run_id"])

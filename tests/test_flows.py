@@ -80,7 +80,7 @@ def test_sigkill_midway_then_rerun_resumes_from_cache(smoke_data: Path, tmp_path
     data = tmp_path / "data"
     _copy_recordings(smoke_data, data)
     # a bigger batch than smoke: extra copies under other names are distinct files with equal content
-    for i, p in enumerate(sorted((data / "recordings").glob("*_glove.mcap"))):
+    for p in sorted((data / "recordings").glob("*_glove.mcap")):
         for k in range(4):
             shutil.copy(p, data / "recordings" / f"copy{k}_{p.name}")
     results = data / "prefect" / "results"

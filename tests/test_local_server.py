@@ -97,7 +97,8 @@ def processes_in(data: Path) -> list[str]:
             try:
                 if marker in (entry / "environ").read_bytes().split(b"\0") and alive(int(entry.name)):
                     found.append(
-                        f"{entry.name}: {(entry / 'cmdline').read_bytes().replace(b'\0', b' ')[:160].decode(errors='replace')}"
+                        f"{entry.name}: "
+                        f"{(entry / 'cmdline').read_bytes().replace(b'\0', b' ')[:160].decode(errors='replace')}"
                     )
             except OSError:
                 continue

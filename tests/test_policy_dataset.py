@@ -50,8 +50,13 @@ def lake(tmp_path_factory: pytest.TempPathFactory) -> Path:
     )
     kinematic = scripted_rollout_rows("pick", "contrack", 1, 10, origin="kinematic", seed=1)
     lake_io.write_rows(lake, "rollouts", "kinematic-pick", kinematic, partition={"method": "contrack"})
-    lake_io.write_rows(lake, "rollouts", "kinematic-drawer", scripted_rollout_rows("drawer", "dex-retargeting", 2, 12, origin="kinematic"),
-                       partition={"method": "dex-retargeting"})  # fmt: skip
+    lake_io.write_rows(
+        lake,
+        "rollouts",
+        "kinematic-drawer",
+        scripted_rollout_rows("drawer", "dex-retargeting", 2, 12, origin="kinematic"),
+        partition={"method": "dex-retargeting"},
+    )
     return lake
 
 
@@ -74,7 +79,7 @@ def test_origins_narrow_and_order_the_choice(lake: Path) -> None:
     only_kinematic = {(s.task, s.method, s.origin) for s in sources(lake, ("kinematic",))}
     assert ("drawer", "dex-retargeting", "kinematic") in only_kinematic
     assert all(origin == "kinematic" for _, _, origin in only_kinematic)
-    with pytest.raises(ValueError, match="policy.origins.*'replay'"):
+    with pytest.raises(ValueError, match=r"policy\.origins.*'replay'"):
         sources(lake, ("teacher", "replay"))
 
 
@@ -113,8 +118,13 @@ def test_policy_sources_share_their_demonstrations_per_task(tmp_path: Path) -> N
         scripted_rollout_rows("pick", "contrack", 3, 4),
         partition={"method": "contrack"},
     )
-    lake_io.write_rows(layout.lake, "rollouts", "kinematic-pick", scripted_rollout_rows("pick", "dex-retargeting", 2, 4, origin="kinematic"),
-                       partition={"method": "dex-retargeting"})  # fmt: skip
+    lake_io.write_rows(
+        layout.lake,
+        "rollouts",
+        "kinematic-pick",
+        scripted_rollout_rows("pick", "dex-retargeting", 2, 4, origin="kinematic"),
+        partition={"method": "dex-retargeting"},
+    )
     found = {s["method"]: s["references"] for s in rollout_sources(str(layout.root), CONFIG)}
     assert found == {"contrack": ["scripted-000", "scripted-001"], "dex-retargeting": ["scripted-000", "scripted-001"]}
     alone = rollout_sources(str(layout.root), CONFIG, methods=["contrack"])

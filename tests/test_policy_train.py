@@ -56,7 +56,7 @@ def test_a_few_updates_lower_the_loss(trained) -> None:
 
 
 def test_training_resumes_from_the_last_checkpoint(trained) -> None:
-    summary, _, result, _, base = trained
+    summary, _, _, _, base = trained
     assert last_checkpoint(base / "out").name == f"{CONFIG.steps:06d}"
     more = train(Path(summary.root), summary.repo_id, CONFIG, base / "out", steps=CONFIG.steps + CONFIG.log_freq)
     assert more.resumed_from == CONFIG.steps and more.steps == CONFIG.steps + CONFIG.log_freq
@@ -250,8 +250,12 @@ def test_policy_flow_fills_policy_eval_and_mlflow(tmp_path: Path) -> None:
     assert [(r["task"], r["method"], r["origin"], r["episodes"], r["dataset_episodes"]) for r in rows] == [
         ("pick", "contrack", "teacher", CONFIG.eval_episodes, 2)
     ]
-    table = catalog.query(layout, "SELECT task, method, episodes, ci_low <= success_rate AND success_rate <= ci_high AS inside, "
-                                  "fit_wrist_err_mm > 0 AND hold_wrist_err_mm > 0 AS fitted, replay_successes BETWEEN 0 AND episodes AS replayed FROM policy_eval")  # fmt: skip
+    table = catalog.query(
+        layout,
+        "SELECT task, method, episodes, ci_low <= success_rate AND success_rate <= ci_high AS inside, "
+        "fit_wrist_err_mm > 0 AND hold_wrist_err_mm > 0 AS fitted, replay_successes BETWEEN 0 AND episodes AS replayed "
+        "FROM policy_eval",
+    )
     assert table.to_pylist() == [
         {
             "task": "pick",

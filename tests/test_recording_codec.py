@@ -112,8 +112,10 @@ def test_rosbags_reads_our_files(tmp_path: Path) -> None:
 
 def test_writer_leaves_no_file_on_error(tmp_path: Path) -> None:
     path = tmp_path / "g.mcap"
-    with pytest.raises(RuntimeError):
-        with RecordingWriter(path, "glove_session", {"task": "pick", "subject": "s01"}) as w:
-            w.write("/glove/hand_joints", 1, cdr.encode_joint_state(1, "glove", GLOVE_JOINT_NAMES, np.zeros(20)))
-            raise RuntimeError("recorder crashed")
+    with (
+        pytest.raises(RuntimeError),
+        RecordingWriter(path, "glove_session", {"task": "pick", "subject": "s01"}) as w,
+    ):
+        w.write("/glove/hand_joints", 1, cdr.encode_joint_state(1, "glove", GLOVE_JOINT_NAMES, np.zeros(20)))
+        raise RuntimeError("recorder crashed")
     assert list(tmp_path.iterdir()) == []

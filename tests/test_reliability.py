@@ -13,6 +13,7 @@ fixes its settings per process, and (b) needs a process to kill."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -97,10 +98,8 @@ def live_processes_with(data: Path) -> list[str]:
 def kill_survivors(data: Path) -> None:
     """SIGKILL what a failed test left running in ``data`` (processes this test started)."""
     for line in live_processes_with(data):
-        try:
+        with contextlib.suppress(ProcessLookupError):
             os.kill(int(line.split(":")[0]), signal.SIGKILL)
-        except ProcessLookupError:
-            pass
 
 
 def smoke_recordings(data: Path) -> list[Path]:
@@ -139,7 +138,7 @@ def test_two_concurrent_ingests_on_one_folder(tmp_path: Path, processes: list[su
     processes.extend(start_flow("ingest", "ingest", data, log) for log in logs)
     for proc in processes:
         proc.wait(timeout=600)
-    results = [finished(proc, log) for proc, log in zip(processes, logs)]
+    results = [finished(proc, log) for proc, log in zip(processes, logs, strict=True)]
 
     for result in results:
         assert result["files"] == len(files) and result["quarantined"] == 0

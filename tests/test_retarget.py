@@ -93,7 +93,7 @@ def test_urdf_kinematics_match_the_hand_description(retargeter: Retargeter) -> N
     base_from_palm = quat_to_mat(np.asarray(hd.PALM_IN_WRIST_QUAT))
     for _ in range(5):
         q = rng.uniform(kin.lower, kin.upper)
-        tips = hd.tip_positions_in_palm(dict(zip(hd.JOINT_NAMES, q)))
+        tips = hd.tip_positions_in_palm(dict(zip(hd.JOINT_NAMES, q, strict=True)))
         expected = np.stack(
             [
                 base_from_palm @ tips[s] + np.asarray(hd.PALM_IN_WRIST_POS)

@@ -158,7 +158,7 @@ def _fingertip_ik(targets: dict[str, tuple[float, float, float]], q0: np.ndarray
     high = np.array([joints[n].upper for n in hd.JOINT_NAMES])
 
     def residual(q: np.ndarray) -> np.ndarray:
-        tips = hd.tip_positions_in_palm(dict(zip(hd.JOINT_NAMES, q)))
+        tips = hd.tip_positions_in_palm(dict(zip(hd.JOINT_NAMES, q, strict=True)))
         return np.concatenate([tips[s] - t for s, t in targets.items()] + [0.01 * (q - q0)])
 
     return least_squares(residual, q0, bounds=(low, high)).x

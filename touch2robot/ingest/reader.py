@@ -137,7 +137,8 @@ def _decode_topic(path: Path, topic: Topic, channel: Channel, schema: Schema | N
         i = int(np.flatnonzero(steps <= 0)[0]) + 1
         raise RecordingError(
             path,
-            f"{where}: timestamps not strictly increasing at message {i} ({batch.stamp_ns[i]} ns after {batch.stamp_ns[i - 1]} ns)",
+            f"{where}: timestamps not strictly increasing at message {i} ({batch.stamp_ns[i]} ns after "
+            f"{batch.stamp_ns[i - 1]} ns)",
         )
     if topic.joint_names is not None:
         batch = _order_joints(path, topic, batch)
@@ -175,7 +176,8 @@ def _order_joints(path: Path, topic: Topic, batch: Batch) -> Batch:
     if absent:
         raise RecordingError(
             path,
-            f"topic {topic.name}: joint names lack {', '.join(absent)} ({len(names)} joints, expected {len(topic.joint_names)})",
+            f"topic {topic.name}: joint names lack {', '.join(absent)} ({len(names)} joints, expected "
+            f"{len(topic.joint_names)})",
         )
     order = [names.index(n) for n in topic.joint_names]
     fields = {k: (v[:, order] if v.shape[1] == len(names) else v) for k, v in batch.fields.items()}

@@ -70,7 +70,8 @@ class PolicyConfig(BaseModel):
         # LeRobot executes actions from the current observation on: n_obs - 1 + n_action <= horizon
         if self.n_action_steps > self.horizon - self.n_obs_steps + 1:
             raise ValueError(
-                f"n_action_steps={self.n_action_steps} exceeds horizon - n_obs_steps + 1 = {self.horizon - self.n_obs_steps + 1}"
+                f"n_action_steps={self.n_action_steps} exceeds horizon - n_obs_steps + 1 = "
+                f"{self.horizon - self.n_obs_steps + 1}"
             )
         levels = len(self.down_dims) if self.down_dims is not None else 3
         if self.horizon % 2**levels:

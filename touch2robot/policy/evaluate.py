@@ -117,8 +117,17 @@ def _observation(env: BatchEnv, renderer: CameraRenderer) -> dict[str, np.ndarra
     return obs
 
 
-def rollout_policy(policy, preprocessor, postprocessor, scene: Scene, sim: SimConfig, starts: EpisodeStarts, cfg: PolicyConfig,
-                   video_episodes: int = 0, steps: int | None = None) -> EvalResult:  # fmt: skip
+def rollout_policy(
+    policy,
+    preprocessor,
+    postprocessor,
+    scene: Scene,
+    sim: SimConfig,
+    starts: EpisodeStarts,
+    cfg: PolicyConfig,
+    video_episodes: int = 0,
+    steps: int | None = None,
+) -> EvalResult:
     """Run the episodes of ``starts`` closed loop, ``cfg.eval_batch`` at a time as BatchEnv copies.
     ``steps`` defaults to the task's episode length. The first ``video_episodes`` are recorded
     (both cameras side by side). The diffusion noise is seeded with ``cfg.eval_seed``, so a re-run
@@ -130,8 +139,17 @@ def rollout_policy(policy, preprocessor, postprocessor, scene: Scene, sim: SimCo
         return _rollout_policy(policy, preprocessor, postprocessor, scene, sim, starts, cfg, video_episodes, steps)
 
 
-def _rollout_policy(policy, preprocessor, postprocessor, scene: Scene, sim: SimConfig, starts: EpisodeStarts, cfg: PolicyConfig,
-                    video_episodes: int, steps: int | None) -> EvalResult:  # fmt: skip
+def _rollout_policy(
+    policy,
+    preprocessor,
+    postprocessor,
+    scene: Scene,
+    sim: SimConfig,
+    starts: EpisodeStarts,
+    cfg: PolicyConfig,
+    video_episodes: int,
+    steps: int | None,
+) -> EvalResult:
     n_obs, n_act = policy.config.n_obs_steps, policy.config.n_action_steps
     renderer = CameraRenderer(
         scene, tuple(k.removeprefix("observation.images.") for k in policy.config.image_features), cfg.image_size
@@ -301,8 +319,16 @@ class PolicyEvaluation:
     replay: EvalResult
 
 
-def evaluate(policy_dir: Path, dataset_root: Path, repo_id: str, scene: Scene, sim: SimConfig, rollouts: list[Rollout], cfg: PolicyConfig,
-             video_episodes: int = 0) -> PolicyEvaluation:  # fmt: skip
+def evaluate(
+    policy_dir: Path,
+    dataset_root: Path,
+    repo_id: str,
+    scene: Scene,
+    sim: SimConfig,
+    rollouts: list[Rollout],
+    cfg: PolicyConfig,
+    video_episodes: int = 0,
+) -> PolicyEvaluation:
     """``cfg.eval_episodes`` seeded episodes of the policy in ``policy_dir`` started from
     ``rollouts``' reset rows, its fit to its dataset, and the replay ceiling from the same starts."""
     starts = episode_starts(scene, rollouts, cfg.eval_episodes, cfg.eval_seed, cfg.object_noise_m)

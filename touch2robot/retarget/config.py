@@ -49,8 +49,9 @@ class RetargetConfig(BaseModel):
     reference_hand_length: float | None = Field(
         0.2,
         gt=0,
-        description="hand length (m, wrist -> middle MCP -> middle tip along the bones, median over the recording) for which "
-        "`scaling` holds; a recording's factor is scaling x reference / its hand length. None: `scaling` for every hand",
+        description="hand length (m, wrist -> middle MCP -> middle tip along the bones, median over the recording) "
+        "for which `scaling` holds; a recording's factor is scaling x reference / its hand length. "
+        "None: `scaling` for every hand",
     )
     huber_delta: float = Field(0.02, gt=0, description="Huber (smooth-L1) transition, m of vector error")
     regulariser: float = Field(4e-3, ge=0, description="weight of |q - q_previous|^2 (Dex Retargeting's norm_delta)")
@@ -76,7 +77,7 @@ class RetargetConfig(BaseModel):
         bad = [k for k in (*self.origin_keypoints, *self.task_keypoints) if not 0 <= k < N_KEYPOINTS]
         if bad:
             raise ValueError(f"keypoint indices must lie in 0..{N_KEYPOINTS - 1}, got {bad}")
-        if any(o == t for o, t in zip(self.origin_links, self.task_links)):
+        if any(o == t for o, t in zip(self.origin_links, self.task_links, strict=True)):
             raise ValueError("an objective vector needs two different links")
         return self
 

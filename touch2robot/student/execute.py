@@ -129,8 +129,16 @@ class Reconstruction:
     figures: dict[str, float]  # over the evaluated demonstrations
 
 
-def reconstruct_task(net: StudentNet, task: str, refs: list[DemoReference], config: TeacherConfig, method: str, variant: str,
-                     teacher_rollouts: pa.Table | None = None, evaluated: Collection[str] | None = None) -> Reconstruction:  # fmt: skip
+def reconstruct_task(
+    net: StudentNet,
+    task: str,
+    refs: list[DemoReference],
+    config: TeacherConfig,
+    method: str,
+    variant: str,
+    teacher_rollouts: pa.Table | None = None,
+    evaluated: Collection[str] | None = None,
+) -> Reconstruction:
     """Batched inference over each demonstration, execution in MuJoCo, and the figures over the
     ``evaluated`` demonstrations (recording ids; default all of ``refs``):
 

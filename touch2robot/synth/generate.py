@@ -145,7 +145,7 @@ def _write_glove(config: SynthConfig, job: RecordingJob, path: Path, gt_path: Pa
     obj_pos = obj.object_pos + rng.normal(0.0, 0.0005, obj.object_pos.shape)
 
     def ns(t: float) -> int:
-        return t0_ns + int(round(t * 1e9))
+        return t0_ns + round(t * 1e9)
 
     metadata = {
         "task": job.task,
@@ -257,7 +257,7 @@ def _write_replay(config: SynthConfig, job: RecordingJob, path: Path, gt_path: P
             + [(t, 2, i) for i, t in enumerate(t_js)] + [(t, 3, i) for i, t in enumerate(t_tg)]
         )  # fmt: skip
         for t, stream, i in events:
-            s = t0_ns + int(round(t * 1e9))
+            s = t0_ns + round(t * 1e9)
             if stream == 0:
                 w.write("/twintac/raw", s, cdr.encode_tactile(s, "twintac", twintac_raw[i]))
             elif stream == 1:
@@ -285,5 +285,5 @@ def _write_calibration(config: SynthConfig, job: RecordingJob, path: Path, gt_pa
     t0_ns = EPOCH_NS + 2 * 10**15 + _start_offset_s(job) * 10**9
     with RecordingWriter(path, "robot_calibration", {"rig": "simulated-demonstrator", "sensor": "twintac"}) as w:
         for i, ti in enumerate(t):
-            s = t0_ns + int(round(ti * 1e9))
+            s = t0_ns + round(ti * 1e9)
             w.write("/twintac/raw", s, cdr.encode_tactile(s, "twintac", raw[i]))
