@@ -105,7 +105,7 @@ def _wall(cmd: list[str]) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--profile", default="smoke")
     parser.add_argument("--steps", type=int, default=20, help="timed updates")
     parser.add_argument("--warmup", type=int, default=5, help="updates whose cost (with start-up) is subtracted")

@@ -45,7 +45,7 @@ def _steady_mean(curve: list[dict], key: str) -> float | None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--data", type=Path, required=True, help="data folder with a rollouts table (lake/rollouts)")
     parser.add_argument("--task", required=True)
     parser.add_argument("--method", required=True)

@@ -32,7 +32,7 @@ from touch2robot.synth.generate import RecordingJob, write_recording
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--tasks", nargs="+", default=["pick", "rotate", "wipe", "drawer"])
     parser.add_argument("--repeats", type=int, default=2, help="passes over the recordings (the first warms caches)")
     args = parser.parse_args()

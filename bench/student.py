@@ -39,7 +39,7 @@ from touch2robot.synth.generate import RecordingJob, write_recording
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--profile", default="paper", help="whose student sizes (default the paper's)")
     parser.add_argument("--tasks", nargs="+", default=["pick", "rotate", "wipe", "drawer"])
     parser.add_argument("--repeats", type=int, default=2, help="passes (the first warms caches)")

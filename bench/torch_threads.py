@@ -61,7 +61,7 @@ def _rates(cmds: list[list[str]], after_step: int) -> list[float]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--profile", default="local")
     parser.add_argument("--steps", type=int, default=30, help="timed updates")
     parser.add_argument("--warmup", type=int, default=10, help="updates first, untimed")

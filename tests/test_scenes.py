@@ -147,7 +147,7 @@ def test_render_saves_both_cameras_of_every_scene(tmp_path: Path) -> None:
         assert image.std() > 10  # not a blank frame
 
 
-def _fingertip_ik(targets: dict[str, tuple[float, float, float]], q0: np.ndarray) -> np.ndarray:
+def _fingertip_ik(targets: dict[str, np.ndarray], q0: np.ndarray) -> np.ndarray:
     """Joint angles (within limits) putting the given fingertip sites at palm-frame points."""
     from scipy.optimize import least_squares
 

@@ -98,7 +98,7 @@ def dataset(student_lake: Path, references: dict) -> pa.Table:
     for task in TASKS:
         seqs = paired_sequences(_teacher_rows(student_lake, task), references, 0.5)
         table = augment(seqs, 4, 0.1, 0, val=seqs)
-        tables.append(table.filter(pc.equal(table["split"], "val" if task == "pick" else "train")))
+        tables.append(table.filter(pc.equal(table["split"], "val" if task == "pick" else "train")))  # pyright: ignore[reportAttributeAccessIssue]
     return pa.concat_tables(tables)
 
 
@@ -120,7 +120,7 @@ def test_split_is_by_demonstration_and_flags_in_sample() -> None:
 def test_paired_steps_follow_the_teacher(student_lake: Path, references: dict) -> None:
     rows = _teacher_rows(student_lake, "wipe")
     seq = paired_sequences(rows, references, 0.5)[0]
-    first = rows.filter(pc.equal(rows["rollout_id"], seq.source_rollout_id))
+    first = rows.filter(pc.equal(rows["rollout_id"], seq.source_rollout_id))  # pyright: ignore[reportAttributeAccessIssue]
     target = ro.column(first, "joint_target")
     # step j pairs frame j's kinematic joints with the command of row j - 1 (aimed at frame j)
     np.testing.assert_allclose(seq.target_joints, target[:-1])
@@ -141,7 +141,7 @@ def test_augmentation_shares_the_noise_and_is_seeded(student_lake: Path, referen
     ids = table["sample_id"].unique().to_pylist()
     assert len(ids) == 7 and table["augment"].to_pylist()[-1] == 3  # 2 unchanged, then copies
     inputs, targets = ro.column(table, "kinematic_joints"), ro.column(table, "target_joints")
-    augmented = pc.greater(table["augment"], 0).to_numpy(zero_copy_only=False)
+    augmented = pc.greater(table["augment"], 0).to_numpy(zero_copy_only=False)  # pyright: ignore[reportAttributeAccessIssue]
     noise = inputs - np.concatenate([seqs[0].joints, seqs[1].joints] * 4)[: len(inputs)]
     assert not augmented[: 2 * len(seqs[0].step)].any()
     assert 0.08 < noise[augmented].std() < 0.12 and np.abs(noise[~augmented]).max() < 1e-6
@@ -159,7 +159,7 @@ def _clouds() -> torch.Tensor:
 @pytest.fixture(scope="module")
 def trained(dataset: pa.Table, tmp_path_factory: pytest.TempPathFactory):
     torch.set_num_threads(1)
-    part = lambda s: windows_from_table(dataset.filter(pc.equal(dataset["split"], s)), TASKS, TINY.history)  # noqa: E731
+    part = lambda s: windows_from_table(dataset.filter(pc.equal(dataset["split"], s)), TASKS, TINY.history)  # noqa: E731  # pyright: ignore[reportAttributeAccessIssue]
     folder = tmp_path_factory.mktemp("student-ckpt")
     logged: dict[int, dict[str, float]] = {}
     result = train(
@@ -269,7 +269,7 @@ def test_executing_the_teachers_own_commands_reproduces_its_rollout(student_lake
         env, DemoTracking(stack_references([ref]), TEACHER, "touch2robot"), [perfect], TEACHER, "touch2robot"
     )
     env.close()
-    teacher = rows.filter(pc.equal(rows["rollout_id"], seq.source_rollout_id))
+    teacher = rows.filter(pc.equal(rows["rollout_id"], seq.source_rollout_id))  # pyright: ignore[reportAttributeAccessIssue]
     assert student_rows.num_rows == teacher.num_rows and student_rows["origin"][0].as_py() == "student"
     np.testing.assert_allclose(
         ro.column(student_rows, "joint_position"), ro.column(teacher, "joint_position"), atol=1e-6
@@ -329,7 +329,7 @@ def test_student_flow_end_to_end(student_lake: Path, tmp_path: Path) -> None:
     assert out["split"]["in_sample"] and {r["task"] for r in out["heldout"]} == set(TASKS)
 
     data = pa.concat_tables([pq.read_table(p) for p in lake_io.files(layout.lake, "student_dataset")])
-    train_rows = data.filter(pc.equal(data["split"], "train"))
+    train_rows = data.filter(pc.equal(data["split"], "train"))  # pyright: ignore[reportAttributeAccessIssue]
     assert len(train_rows["sample_id"].unique()) == 16  # balanced over the 3 trained tasks; drawer validates
     for task in TASKS:
         assert lake_io.file_path(layout.lake, "rollouts", f"student-{task}", {"method": "touch2robot"}).is_file()

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -100,7 +101,8 @@ def load_policy(policy_dir: Path, device: str | None = None):
     from lerobot.policies import make_pre_post_processors
     from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
 
-    policy = DiffusionPolicy.from_pretrained(str(policy_dir), **({"device": device} if device else {}))
+    overrides: dict[str, Any] = {"device": device} if device else {}
+    policy = DiffusionPolicy.from_pretrained(str(policy_dir), **overrides)
     policy.eval()
     overrides = {"device_processor": {"device": policy.config.device}}
     pre, post = make_pre_post_processors(
@@ -295,7 +297,7 @@ def _action_fit(
     executed = slice(now, now + c.n_action_steps)
     errors, holds, valid = [], [], []
     for part in np.array_split(chosen, max(1, -(-len(chosen) // batch_size))):
-        items = [dataset[int(i)] for i in part]
+        items: list[dict] = [dataset[int(i)] for i in part]  # pyright: ignore[reportAssignmentType]  an int index gives one frame
         stacked = {k: torch.stack([it[k] for it in items]) for k in (*keys, "action", "action_is_pad")}
         predicted = _predict_batch(policy, preprocessor, postprocessor, {k: stacked[k] for k in keys})
         recorded = stacked["action"][:, executed].numpy()

@@ -17,6 +17,7 @@ object, preference and contacts are unchanged. Each copy is seeded by (seed, tas
 from __future__ import annotations
 
 import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -173,7 +174,7 @@ def _rows(seq: PairedSequence, sample_id: str, split: str, augment: int, noise: 
 
 
 def augment(
-    train: list[PairedSequence], count: int, noise_std: float, seed: int, val: list[PairedSequence] = ()
+    train: list[PairedSequence], count: int, noise_std: float, seed: int, val: Sequence[PairedSequence] = ()
 ) -> pa.Table:
     """``student_dataset`` rows of one task: ``count`` training rollouts (the teacher rollouts
     unchanged, then seeded noisy copies) and the validation rollouts unchanged (a task can
