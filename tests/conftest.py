@@ -185,3 +185,10 @@ def scripted_rollout_rows(task: str, method: str, n: int, steps: int, origin: st
             "reference_joints": [r.tolist() for r in rows["joint_target"]],
         }
     )
+
+
+def lerobot_frame(dataset, index: int) -> dict:
+    """One frame of a LeRobot dataset (its ``__getitem__`` is typed ``dict | list[dict]``, for slices)."""
+    frame = dataset[index]
+    assert isinstance(frame, dict)
+    return frame

@@ -47,6 +47,13 @@ print("RESULT " + json.dumps(result, default=str))
 """
 
 
+def _one_row(con: duckdb.DuckDBPyConnection, sql: str, params: list | None = None) -> tuple:
+    """The row of a query that returns exactly one."""
+    row = con.execute(sql, params).fetchone()
+    assert row is not None
+    return row
+
+
 def flow_env(data: Path) -> dict[str, str]:
     """The embedded defaults, all under ``data`` (what `touch2robot run` does on a laptop)."""
     env = {k: v for k, v in os.environ.items() if not k.startswith(("PREFECT_", "MLFLOW_"))}
@@ -152,11 +159,11 @@ def test_two_concurrent_ingests_on_one_folder(tmp_path: Path, processes: list[su
             len(files),
         )
         for (table, rid), n in expected.items():
-            got = con.execute(f"SELECT count(*) FROM {table} WHERE recording_id = ?", [rid]).fetchone()[0]
+            (got,) = _one_row(con, f"SELECT count(*) FROM {table} WHERE recording_id = ?", [rid])
             assert got == n, f"{table} holds {got} rows of {rid}, one ingest writes {n}"
-        total, distinct = con.execute(
-            "SELECT count(*), count(DISTINCT (source, sequence_id, t, region)) FROM contacts"
-        ).fetchone()
+        total, distinct = _one_row(
+            con, "SELECT count(*), count(DISTINCT (source, sequence_id, t, region)) FROM contacts"
+        )
         assert total == distinct > 0, "duplicate contact rows"
     finally:
         con.close()
@@ -258,9 +265,9 @@ def test_sigkill_of_the_command_alone_leaves_nothing_running_and_the_rerun_resum
     con = duckdb.connect(str(data / "catalog.duckdb"), read_only=True)
     try:
         assert con.execute("SELECT count(*), count(DISTINCT recording_id) FROM recordings").fetchone() == (files, files)
-        total, distinct = con.execute(
-            "SELECT count(*), count(DISTINCT (source, sequence_id, t, region)) FROM contacts"
-        ).fetchone()
+        total, distinct = _one_row(
+            con, "SELECT count(*), count(DISTINCT (source, sequence_id, t, region)) FROM contacts"
+        )
         assert total == distinct > 0, "duplicate contact rows"
     finally:
         con.close()

@@ -78,7 +78,7 @@ def test_all_zero_differences_give_nan_and_leave_the_holm_family() -> None:
         ratings.loc[q2 & (ratings["condition"] == "Touch2Robot"), "participant"].map(vf).to_numpy()
     )
     frame = user_study(ratings).to_frame().set_index("question")
-    assert frame.loc["Q2", ["p", "p_holm"]].isna().all()
+    assert frame.loc[["Q2"], ["p", "p_holm"]].isna().all(axis=None)
     assert frame.loc["Q2", "statistic"] == 0.0 and frame.loc["Q2", "n_zero"] == 10
     others = frame.drop(index="Q2")
     np.testing.assert_allclose(others["p_holm"], _statsmodels_holm(others["p"]), rtol=1e-12)

@@ -162,13 +162,17 @@ def trained(dataset: pa.Table, tmp_path_factory: pytest.TempPathFactory):
     part = lambda s: windows_from_table(dataset.filter(pc.equal(dataset["split"], s)), TASKS, TINY.history)  # noqa: E731  # pyright: ignore[reportAttributeAccessIssue]
     folder = tmp_path_factory.mktemp("student-ckpt")
     logged: dict[int, dict[str, float]] = {}
+
+    def log(step: int, metrics: dict[str, float]) -> None:
+        logged.setdefault(step, metrics)
+
     result = train(
         part("train"),
         part("val"),
         _clouds(),
         TINY,
         folder,
-        on_log=lambda step, metrics: logged.setdefault(step, metrics),
+        on_log=log,
     )
     return result, part, folder, logged
 
@@ -199,13 +203,17 @@ def test_a_training_stopped_midway_resumes_to_the_one_never_stopped(trained, tmp
     stopped = train(part("train"), part("val"), _clouds(), TINY, folder, should_stop=lambda: next(updates) >= 25)
     assert stopped.steps == 25 and torch.load(folder / CHECKPOINT, weights_only=False)["step"] == 25
     resumed_log: dict[int, dict[str, float]] = {}
+
+    def log_resumed(step: int, metrics: dict[str, float]) -> None:
+        resumed_log.setdefault(step, metrics)
+
     resumed = train(
         part("train"),
         part("val"),
         _clouds(),
         TINY,
         folder,
-        on_log=lambda step, metrics: resumed_log.setdefault(step, metrics),
+        on_log=log_resumed,
     )
     assert resumed.resumed_from == 25 and resumed.steps == TINY.steps
     assert resumed_log == {step: logged[step] for step in (40, 60)}
@@ -344,7 +352,9 @@ def test_student_flow_end_to_end(student_lake: Path, tmp_path: Path) -> None:
     full = trained["full"]["mlflow_run"]
     assert any(k.startswith("heldout/pick/") for k in mlflow.get_run(full).data.metrics)
     model = mlflow.pyfunc.load_model(f"runs:/{full}/model")
-    example = np.zeros((2, model.metadata.get_input_schema().inputs[0].shape[1]), dtype=np.float32)
+    schema = model.metadata.get_input_schema()
+    assert schema is not None
+    example = np.zeros((2, schema.inputs[0].shape[1]), dtype=np.float32)
     assert model.predict(example).shape == (2, 30)
 
     again = student(profile="smoke", data=str(root))
