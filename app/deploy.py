@@ -24,10 +24,11 @@ from pathlib import Path
 from typing import Any
 from uuid import UUID
 
-import flows  # noqa: F401  # isort: skip  configures the environment before Prefect is imported
+import flows as _configures_environment  # noqa: F401  # isort: skip  before Prefect is imported
 import yaml
 from prefect import Flow, get_client
 from prefect.client.schemas.actions import WorkPoolCreate
+from prefect.deployments.runner import RunnerDeployment
 from prefect.exceptions import ObjectNotFound
 from prefect.settings import get_current_settings
 from prefect.workers.base import BaseWorker
@@ -138,9 +139,10 @@ def deploy_all(
     ids: dict[str, UUID] = {}
     for spec in specs:
         # from_source with a folder loads the flow from there and records that folder as
-        # the runs' working directory (a set_working_directory pull step), as `prefect deploy` does
-        flow_obj: Flow[..., Any] = Flow.from_source(source=str(config.parent), entrypoint=spec.entrypoint)
-        deployment = flow_obj.to_deployment(
+        # the runs' working directory (a set_working_directory pull step), as `prefect deploy` does.
+        # Prefect's async_dispatch types these sync calls as "value or coroutine": hence the ignores
+        flow_obj: Flow[..., Any] = Flow.from_source(source=str(config.parent), entrypoint=spec.entrypoint)  # pyright: ignore[reportAssignmentType]
+        deployment: RunnerDeployment = flow_obj.to_deployment(  # pyright: ignore[reportAssignmentType]
             name=target.variant,
             description=spec.description,
             parameters=spec.parameters,
@@ -149,7 +151,7 @@ def deploy_all(
             work_queue_name=target.work_queue_name,
             job_variables=target.job_variables,
         )
-        ids[f"{flow_obj.name}/{target.variant}"] = deployment.apply(work_pool_name=target.name)
+        ids[f"{flow_obj.name}/{target.variant}"] = deployment.apply(work_pool_name=target.name)  # pyright: ignore[reportArgumentType]
     return ids
 
 

@@ -25,7 +25,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 OURS = (
-    "import sys, torch; torch.set_num_threads(1); from pathlib import Path; from touch2robot.config import load_profile; "
+    "import sys, torch; torch.set_num_threads(1); from pathlib import Path; from touch2robot.config import "
+    "load_profile; "
     "from touch2robot.policy.train import train; cfg = load_profile(sys.argv[1]).policy; "
     "train(Path(sys.argv[2]), sys.argv[3], cfg, Path(sys.argv[4]), steps=int(sys.argv[5]))"
 )
@@ -60,8 +61,11 @@ def _dataset(data: Path | None, cfg, out: Path) -> tuple[Path, str, float]:
         sim,
         cfg,
     )
-    print(f"dataset {src.method}-{src.task}: {summary.episodes} episodes, {summary.frames} frames, {cfg.image_size} px x {len(cfg.cameras)} cameras: "
-          f"rendering {summary.render_fps:.0f} images/s ({summary.render_fps / len(cfg.cameras):.0f} frames/s)")  # fmt: skip
+    print(
+        f"dataset {src.method}-{src.task}: {summary.episodes} episodes, {summary.frames} frames, {cfg.image_size} px x "
+        f"{len(cfg.cameras)} cameras: "
+        f"rendering {summary.render_fps:.0f} images/s ({summary.render_fps / len(cfg.cameras):.0f} frames/s)"
+    )
     return Path(summary.root), summary.repo_id, summary.render_fps
 
 
@@ -101,7 +105,7 @@ def _wall(cmd: list[str]) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--profile", default="smoke")
     parser.add_argument("--steps", type=int, default=20, help="timed updates")
     parser.add_argument("--warmup", type=int, default=5, help="updates whose cost (with start-up) is subtracted")
@@ -132,8 +136,11 @@ def main() -> None:
                 rates[name].append(args.steps * cfg.batch_size / (walls[1] - walls[0]))
                 print(f"round {r} {name:>13}: {rates[name][-1]:.2f} samples/s")
     ours, theirs = max(rates["ours"]), max(rates["lerobot-train"])
-    print(f"training ({args.profile}: batch {cfg.batch_size}, {cfg.image_size} px, n_obs {cfg.n_obs_steps}, down_dims {cfg.down_dims}): "
-          f"ours {ours:.2f} samples/s, lerobot-train {theirs:.2f} samples/s, ratio {ours / theirs:.3f} (target >= 0.95)")  # fmt: skip
+    print(
+        f"training ({args.profile}: batch {cfg.batch_size}, {cfg.image_size} px, n_obs {cfg.n_obs_steps}, down_dims "
+        f"{cfg.down_dims}): "
+        f"ours {ours:.2f} samples/s, lerobot-train {theirs:.2f} samples/s, ratio {ours / theirs:.3f} (target >= 0.95)"
+    )
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ import shutil
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 from mcap.reader import make_reader
@@ -73,7 +74,7 @@ def naive_ingest(paths: list[Path], out: Path) -> float:
             for _, channel, message, msg in make_reader(
                 f, decoder_factories=[DecoderFactory()]
             ).iter_decoded_messages():
-                row = {"t": message.log_time / 1e9}
+                row: dict[str, Any] = {"t": message.log_time / 1e9}
                 for field in ("values", "position", "velocity", "effort", "poses"):
                     if hasattr(msg, field):
                         value = getattr(msg, field)
@@ -92,7 +93,7 @@ def naive_ingest(paths: list[Path], out: Path) -> float:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--mb", type=float, default=200.0, help="size of the generated recording set")
     parser.add_argument("--naive-files", type=int, default=15, help="files for the (slow) naive baseline")
     args = parser.parse_args()

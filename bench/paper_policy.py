@@ -45,7 +45,7 @@ def _steady_mean(curve: list[dict], key: str) -> float | None:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--data", type=Path, required=True, help="data folder with a rollouts table (lake/rollouts)")
     parser.add_argument("--task", required=True)
     parser.add_argument("--method", required=True)
@@ -71,20 +71,34 @@ def main() -> None:
     chosen = [(s, refs) for s, refs in every if s.method == args.method]
     if not chosen or chosen[0][1] == []:
         raise SystemExit(
-            f"{lake / 'rollouts'}: no rollouts of {args.task} x {args.method} to learn from (have {[s.method for s, _ in every]})"
+            f"{lake / 'rollouts'}: no rollouts of {args.task} x {args.method} to learn from (have "
+            f"{[s.method for s, _ in every]})"
         )
     src, references = chosen[0]
     rollouts = read_rollouts(src.path, cfg.max_rollouts, references)
     scene = build_scene(args.task, sim)
     device = cfg.device or ("cuda" if torch.cuda.is_available() else "cpu")
-    summary: dict = {"task": args.task, "method": args.method, "origin": src.origin, "profile": args.profile, "device": device,
-                     "gpu": torch.cuda.get_device_name() if device == "cuda" else None}  # fmt: skip
+    summary: dict = {
+        "task": args.task,
+        "method": args.method,
+        "origin": src.origin,
+        "profile": args.profile,
+        "device": device,
+        "gpu": torch.cuda.get_device_name() if device == "cuda" else None,
+    }
 
     ds = build_dataset(args.out / "dataset", args.task, args.method, rollouts, scene, sim, cfg)
-    summary["dataset"] = {"episodes": ds.episodes, "frames": ds.frames, "image_size": cfg.image_size, "render_images_per_s": round(ds.render_fps, 1),
-                          "build_s": round(ds.build_s, 1), "replay_max_joint_error_rad": ds.replay_max_joint_error_rad}  # fmt: skip
+    summary["dataset"] = {
+        "episodes": ds.episodes,
+        "frames": ds.frames,
+        "image_size": cfg.image_size,
+        "render_images_per_s": round(ds.render_fps, 1),
+        "build_s": round(ds.build_s, 1),
+        "replay_max_joint_error_rad": ds.replay_max_joint_error_rad,
+    }
     print(
-        f"dataset: {ds.episodes} episodes, {ds.frames} frames at {cfg.image_size} px, {ds.render_fps:.0f} images/s, built in {ds.build_s:.0f} s",
+        f"dataset: {ds.episodes} episodes, {ds.frames} frames at {cfg.image_size} px, {ds.render_fps:.0f} images/s, "
+        f"built in {ds.build_s:.0f} s",
         flush=True,
     )
 
@@ -93,7 +107,8 @@ def main() -> None:
     def log(step: int, figures: dict[str, float]) -> None:
         curve.append({"step": step, **figures})
         print(
-            f"step {step:>6}: loss {figures['loss']:.4f}, lr {figures['lr']:.2e}, {figures['samples_per_s']:.1f} samples/s "
+            f"step {step:>6}: loss {figures['loss']:.4f}, lr {figures['lr']:.2e}, {figures['samples_per_s']:.1f} "
+            "samples/s "
             f"(per update: {figures['data_s']:.3f} s waiting for data, {figures['update_s']:.3f} s updating)",
             flush=True,
         )
@@ -104,14 +119,20 @@ def main() -> None:
         or (result.steps - result.resumed_from) / result.seconds
     )
     summary["train"] = {
-        "steps": result.steps, "of_steps": cfg.steps, "resumed_from": result.resumed_from, "seconds": round(result.seconds, 1),
-        "updates_per_s": round(rate, 3), "samples_per_s_with_start_up": round(result.samples_per_s, 1),
+        "steps": result.steps,
+        "of_steps": cfg.steps,
+        "resumed_from": result.resumed_from,
+        "seconds": round(result.seconds, 1),
+        "updates_per_s": round(rate, 3),
+        "samples_per_s_with_start_up": round(result.samples_per_s, 1),
         "hours_for_all_steps": round(cfg.steps / rate / 3600, 2) if rate else None,
         # a loader-bound training (data wait >> update) gains from more policy.num_workers, not a faster GPU
-        "data_s_per_update": _steady_mean(curve, "data_s"), "update_s_per_update": _steady_mean(curve, "update_s"),
-        "first_loss": result.first_loss, "last_loss": result.last_loss,
+        "data_s_per_update": _steady_mean(curve, "data_s"),
+        "update_s_per_update": _steady_mean(curve, "update_s"),
+        "first_loss": result.first_loss,
+        "last_loss": result.last_loss,
         "peak_gpu_memory_gib": round(torch.cuda.max_memory_allocated() / 2**30, 2) if device == "cuda" else None,
-    }  # fmt: skip
+    }
 
     start = time.perf_counter()
     outcome = evaluate(Path(result.policy_dir), Path(ds.root), ds.repo_id, scene, sim, rollouts, cfg)
@@ -128,10 +149,15 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2))
     print(json.dumps({k: v for k, v in summary.items() if k != "loss_curve"}, indent=2))
-    print(f"{args.task} x {args.method} ({args.profile}, {device}): {result.steps}/{cfg.steps} updates in {result.seconds:.0f} s "
-          f"({rate:.2f}/s: all {cfg.steps} would take {summary['train']['hours_for_all_steps']} h), loss {result.first_loss:.3f} -> {result.last_loss:.3f}; "
-          f"success {summary['eval']['successes']}/{summary['eval']['episodes']}, replayed demonstrations {summary['eval']['replay_successes']}, "
-          f"open-loop wrist error {fit.wrist_err_mm:.1f} mm (holding still {fit.hold_wrist_err_mm:.1f})")  # fmt: skip
+    print(
+        f"{args.task} x {args.method} ({args.profile}, {device}): {result.steps}/{cfg.steps} updates in "
+        f"{result.seconds:.0f} s "
+        f"({rate:.2f}/s: all {cfg.steps} would take {summary['train']['hours_for_all_steps']} h), loss "
+        f"{result.first_loss:.3f} -> {result.last_loss:.3f}; "
+        f"success {summary['eval']['successes']}/{summary['eval']['episodes']}, replayed demonstrations "
+        f"{summary['eval']['replay_successes']}, "
+        f"open-loop wrist error {fit.wrist_err_mm:.1f} mm (holding still {fit.hold_wrist_err_mm:.1f})"
+    )
 
 
 if __name__ == "__main__":

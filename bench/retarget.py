@@ -32,7 +32,7 @@ from touch2robot.synth.generate import RecordingJob, write_recording
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--tasks", nargs="+", default=["pick", "rotate", "wipe", "drawer"])
     parser.add_argument("--repeats", type=int, default=2, help="passes over the recordings (the first warms caches)")
     args = parser.parse_args()
@@ -59,8 +59,10 @@ def main() -> None:
         wall = time.perf_counter() - t0
         s, r = np.concatenate(solve) * 1e3, np.concatenate(residual) * 1e3
         print(
-            f"pass {rep + 1}: {frames} frames of {len(motions)} recordings in {wall:.2f} s = {frames / wall:.0f} frames/s on one core; "
-            f"solve ms/frame mean {s.mean():.2f} p50 {np.median(s):.2f} p95 {np.percentile(s, 95):.2f} max {s.max():.2f}; "
+            f"pass {rep + 1}: {frames} frames of {len(motions)} recordings in {wall:.2f} s = {frames / wall:.0f} "
+            "frames/s on one core; "
+            f"solve ms/frame mean {s.mean():.2f} p50 {np.median(s):.2f} p95 {np.percentile(s, 95):.2f} max "
+            f"{s.max():.2f}; "
             f"fingertip residual mm mean {r.mean():.2f} p95 {np.percentile(r, 95):.2f}; failed frames {failed}"
         )
     print(f"model build (URDF -> Pinocchio, optimiser) {build_s * 1e3:.0f} ms; torch threads {torch.get_num_threads()}")

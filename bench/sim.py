@@ -71,8 +71,18 @@ def run_ceiling_per_step(env: BatchEnv, steps: int, pool: rollout.Rollout, datas
     sens = np.empty((env.n, env.cfg.substeps, env.model.nsensordata))
     start = time.perf_counter()
     for k in range(steps):
-        pool.rollout(models, datas, state, control[k], control_spec=CONTROL_SPEC, skip_checks=True, nstep=env.cfg.substeps,
-                     initial_warmstart=warm, state=out[k % 2], sensordata=sens)  # fmt: skip
+        pool.rollout(
+            models,
+            datas,
+            state,
+            control[k],
+            control_spec=CONTROL_SPEC,
+            skip_checks=True,
+            nstep=env.cfg.substeps,
+            initial_warmstart=warm,
+            state=out[k % 2],
+            sensordata=sens,
+        )
         state = out[k % 2, :, -1]
     return env.n * steps / (time.perf_counter() - start)
 
@@ -85,8 +95,18 @@ def run_ceiling_one_call(env: BatchEnv, steps: int, pool: rollout.Rollout, datas
     sens = np.empty((env.n, steps * sub, env.model.nsensordata))
     state = np.tile(env.home_state, (env.n, 1))
     start = time.perf_counter()
-    pool.rollout([env.model] * env.n, datas, state, control, control_spec=CONTROL_SPEC, skip_checks=True, nstep=steps * sub,
-                 initial_warmstart=np.zeros((env.n, env.model.nv)), state=out, sensordata=sens)  # fmt: skip
+    pool.rollout(
+        [env.model] * env.n,
+        datas,
+        state,
+        control,
+        control_spec=CONTROL_SPEC,
+        skip_checks=True,
+        nstep=steps * sub,
+        initial_warmstart=np.zeros((env.n, env.model.nv)),
+        state=out,
+        sensordata=sens,
+    )
     return env.n * steps / (time.perf_counter() - start)
 
 
@@ -126,17 +146,22 @@ def main() -> None:
             lat.append(time.perf_counter() - t)
     single.close()
 
-    print(f"Pick scene, N={args.n}, {cfg.substeps} x {cfg.timestep} s substeps per control step ({cfg.control_hz:g} Hz), "
-          f"{args.threads} threads, {os.cpu_count()} CPUs, best of {args.rounds} interleaved rounds of {args.steps} control steps")  # fmt: skip
+    print(
+        f"Pick scene, N={args.n}, {cfg.substeps} x {cfg.timestep} s substeps per control step ({cfg.control_hz:g} Hz), "
+        f"{args.threads} threads, {os.cpu_count()} CPUs, best of {args.rounds} interleaved rounds of {args.steps} "
+        "control steps"
+    )
     print(f"copies with a tactile region in contact (over all steps): {contact_share:.0%}")
     print(
-        f"BatchEnv:                         {best['env']:9.0f} env steps/s  ({best['env'] * cfg.substeps:.0f} physics steps/s)"
+        f"BatchEnv:                         {best['env']:9.0f} env steps/s  ({best['env'] * cfg.substeps:.0f} physics "
+        "steps/s)"
     )
     print(f"ceiling, rollout per control step:{best['per_step']:9.0f} env steps/s")
     print(f"ceiling, rollout in one call:     {best['one_call']:9.0f} env steps/s")
     print(f"ratio BatchEnv / ceiling: {best['env'] / ceiling:.2f}   (target >= 0.80)")
     print(
-        f"single-copy control step latency: {np.median(lat) * 1e3:.3f} ms median, {np.percentile(lat, 95) * 1e3:.3f} ms p95"
+        f"single-copy control step latency: {np.median(lat) * 1e3:.3f} ms median, {np.percentile(lat, 95) * 1e3:.3f} "
+        "ms p95"
     )
 
 

@@ -39,7 +39,7 @@ from touch2robot.synth.generate import RecordingJob, write_recording
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--profile", default="paper", help="whose student sizes (default the paper's)")
     parser.add_argument("--tasks", nargs="+", default=["pick", "rotate", "wipe", "drawer"])
     parser.add_argument("--repeats", type=int, default=2, help="passes (the first warms caches)")
@@ -56,8 +56,11 @@ def main() -> None:
     retargeter = Retargeter(LEAP_DEFAULT)
     torch.manual_seed(0)
     net = StudentNet(cfg).eval()
-    print(f"student ({args.profile}): d_model {cfg.d_model}, {cfg.layers} layers x {cfg.heads} heads, history {cfg.history}, "
-          f"{sum(p.numel() for p in net.parameters()) / 1e3:.0f}k parameters; torch threads {torch.get_num_threads()}")  # fmt: skip
+    print(
+        f"student ({args.profile}): d_model {cfg.d_model}, {cfg.layers} layers x {cfg.heads} heads, history "
+        f"{cfg.history}, "
+        f"{sum(p.numel() for p in net.parameters()) / 1e3:.0f}k parameters; torch threads {torch.get_num_threads()}"
+    )
     for rep in range(args.repeats):
         frames, kin_s, batch_s = 0, 0.0, 0.0
         stream: dict[bool, list[float]] = {False: [], True: []}
@@ -81,14 +84,21 @@ def main() -> None:
                     stream[compiled].append(time.perf_counter() - t0)
             frames += n
         kin_fps, batch_fps = frames / kin_s, frames / batch_s
-        print(f"pass {rep + 1}: {frames} frames of {len(motions)} recordings | kinematic retargeting {kin_fps:.0f} frames/s | "
-              f"student batched {batch_fps:.0f} steps/s ({batch_fps / kin_fps:.1f}x the retargeter)")  # fmt: skip
+        print(
+            f"pass {rep + 1}: {frames} frames of {len(motions)} recordings | kinematic retargeting {kin_fps:.0f} "
+            "frames/s | "
+            f"student batched {batch_fps:.0f} steps/s ({batch_fps / kin_fps:.1f}x the retargeter)"
+        )
         eager = np.median(stream[False])
         for compiled, label in ((False, "eager modules"), (True, "frozen trace (default)")):
             ms = np.array(stream[compiled]) * 1e3
-            print(f"  streaming, {label:22s}: ms/step mean {ms.mean():.2f} p50 {np.median(ms):.2f} p95 {np.percentile(ms, 95):.2f} "
-                  f"max {ms.max():.2f} ({1e3 / ms.mean():.0f} steps/s; p50 {eager / np.median(stream[compiled]):.2f}x the eager path; "
-                  f"target < 2 ms: {'met' if np.percentile(ms, 95) < 2 else 'NOT met'} at p95)")  # fmt: skip
+            print(
+                f"  streaming, {label:22s}: ms/step mean {ms.mean():.2f} p50 {np.median(ms):.2f} p95 "
+                f"{np.percentile(ms, 95):.2f} "
+                f"max {ms.max():.2f} ({1e3 / ms.mean():.0f} steps/s; p50 {eager / np.median(stream[compiled]):.2f}x "
+                "the eager path; "
+                f"target < 2 ms: {'met' if np.percentile(ms, 95) < 2 else 'NOT met'} at p95)"
+            )
 
 
 if __name__ == "__main__":

@@ -148,7 +148,8 @@ def main() -> None:
     env.close()
 
     print(
-        f"teacher {args.task}/{args.method}: N={args.n}, {args.steps} steps/env/iteration, hidden {args.hidden}, {args.iterations} iterations"
+        f"teacher {args.task}/{args.method}: N={args.n}, {args.steps} steps/env/iteration, hidden {args.hidden}, "
+        f"{args.iterations} iterations"
     )
     print(f"PPO iteration: {1e3 * total / args.iterations:.0f} ms")
     accounted = 0.0
@@ -156,16 +157,19 @@ def main() -> None:
         accounted += seconds
         print(f"  {key:34s} {1e3 * seconds / args.iterations:8.0f} ms  {100 * seconds / total:5.1f} %")
     print(
-        f"  {'rest (storage, logging, rsl-rl)':34s} {1e3 * (total - accounted) / args.iterations:8.0f} ms  {100 * (total - accounted) / total:5.1f} %"
+        f"  {'rest (storage, logging, rsl-rl)':34s} {1e3 * (total - accounted) / args.iterations:8.0f} ms  "
+        f"{100 * (total - accounted) / total:5.1f} %"
     )
     collect = total - totals["PPO update"] - totals["returns (GAE)"]
     rate = env_steps / collect
     print(
-        f"collection: {rate:.0f} env steps/s; physics alone {env_steps / totals['physics (BatchEnv.step)']:.0f} env steps/s"
+        f"collection: {rate:.0f} env steps/s; physics alone {env_steps / totals['physics (BatchEnv.step)']:.0f} env "
+        "steps/s"
     )
     print(f"ceiling (raw rollout of the same states and commands): {best_ceiling:.0f} env steps/s")
     print(
-        f"ratio physics / ceiling: {env_steps / totals['physics (BatchEnv.step)'] / best_ceiling:.2f}; collection / ceiling: {rate / best_ceiling:.2f}"
+        f"ratio physics / ceiling: {env_steps / totals['physics (BatchEnv.step)'] / best_ceiling:.2f}; collection / "
+        f"ceiling: {rate / best_ceiling:.2f}"
     )
 
 

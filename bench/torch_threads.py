@@ -29,9 +29,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from diffusion import ROOT, _dataset
 
 TRAIN = (
-    "import sys, torch; torch.set_num_threads(int(sys.argv[6])); from pathlib import Path; from touch2robot.config import load_profile; "
-    "from touch2robot.policy.train import train; cfg = load_profile(sys.argv[1]).policy.model_copy(update={'log_freq': int(sys.argv[7]), 'save_freq': 10**6}); "
-    "train(Path(sys.argv[2]), sys.argv[3], cfg, Path(sys.argv[4]), steps=int(sys.argv[5]), on_log=lambda step, m: print('RATE', step, m['samples_per_s'], flush=True))"
+    "import sys, torch; torch.set_num_threads(int(sys.argv[6])); from pathlib import Path; from touch2robot.config "
+    "import load_profile; "
+    "from touch2robot.policy.train import train; cfg = load_profile(sys.argv[1]).policy.model_copy(update={'log_freq': "
+    "int(sys.argv[7]), 'save_freq': 10**6}); "
+    "train(Path(sys.argv[2]), sys.argv[3], cfg, Path(sys.argv[4]), steps=int(sys.argv[5]), on_log=lambda step, m: "
+    "print('RATE', step, m['samples_per_s'], flush=True))"
 )
 SPIN = "while True: pass"
 
@@ -58,7 +61,7 @@ def _rates(cmds: list[list[str]], after_step: int) -> list[float]:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--profile", default="local")
     parser.add_argument("--steps", type=int, default=30, help="timed updates")
     parser.add_argument("--warmup", type=int, default=10, help="updates first, untimed")
@@ -82,8 +85,13 @@ def main() -> None:
     side_by_side = (
         profile.training_runner.max_workers or os.cpu_count() or 1
     )  # None: Prefect's default pool, a process per core
-    cases = [(n, threads, busy) for busy in ((False,) if args.no_busy else (False, True)) for n in sorted({1, side_by_side}) for threads in sorted({default, max(1, default // n), 1}, reverse=True)
-             if not (args.no_oversubscribed and n * threads > default)]  # fmt: skip
+    cases = [
+        (n, threads, busy)
+        for busy in ((False,) if args.no_busy else (False, True))
+        for n in sorted({1, side_by_side})
+        for threads in sorted({default, max(1, default // n), 1}, reverse=True)
+        if not (args.no_oversubscribed and n * threads > default)
+    ]
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         root, repo_id, _ = _dataset(args.data, cfg, tmp)
@@ -92,7 +100,21 @@ def main() -> None:
             spinner = subprocess.Popen(["nice", "-n", "19", sys.executable, "-c", SPIN]) if busy else None
             try:
                 steps = args.warmup + args.steps
-                cmds = [[sys.executable, "-c", TRAIN, args.profile, str(root), repo_id, str(tmp / f"{n}-{threads}-{busy}-{i}"), str(steps), str(threads), str(args.window)] for i in range(n)]  # fmt: skip
+                cmds = [
+                    [
+                        sys.executable,
+                        "-c",
+                        TRAIN,
+                        args.profile,
+                        str(root),
+                        repo_id,
+                        str(tmp / f"{n}-{threads}-{busy}-{i}"),
+                        str(steps),
+                        str(threads),
+                        str(args.window),
+                    ]
+                    for i in range(n)
+                ]
                 per = _rates(cmds, args.warmup)
             finally:
                 if spinner is not None:
@@ -100,11 +122,15 @@ def main() -> None:
                     spinner.wait()
             rate[n, threads, busy] = sum(per)
             base = rate.get((n, default, busy), float("nan"))  # nan: the baseline case was skipped
-            print(f"{n} training(s) x {threads} thread(s){' beside a niced busy process' if busy else '':>28}: "
-                  f"{' + '.join(f'{r:.2f}' for r in per)} = {rate[n, threads, busy]:.2f} samples/s, ratio {rate[n, threads, busy] / base:.2f} "
-                  f"to {default} threads each")  # fmt: skip
+            print(
+                f"{n} training(s) x {threads} thread(s){' beside a niced busy process' if busy else '':>28}: "
+                f"{' + '.join(f'{r:.2f}' for r in per)} = {rate[n, threads, busy]:.2f} samples/s, ratio "
+                f"{rate[n, threads, busy] / base:.2f} "
+                f"to {default} threads each"
+            )
     print(
-        f"({args.profile}: batch {cfg.batch_size}, {cfg.image_size} px, n_obs {cfg.n_obs_steps}, down_dims {cfg.down_dims}; {os.cpu_count()} cores)"
+        f"({args.profile}: batch {cfg.batch_size}, {cfg.image_size} px, n_obs {cfg.n_obs_steps}, down_dims "
+        f"{cfg.down_dims}; {os.cpu_count()} cores)"
     )
 
 

@@ -48,7 +48,7 @@ GLOVE_JOINT_NAMES: tuple[str, ...] = (
 # from base to tip (thumb: CMC, MCP, IP, TIP; fingers: MCP, PIP, DIP, TIP).
 KEYPOINT_NAMES: tuple[str, ...] = ("wrist",) + tuple(
     f"{finger}_{joint}"
-    for finger, joints in zip(FINGERS, [("cmc", "mcp", "ip", "tip")] + [("mcp", "pip", "dip", "tip")] * 4)
+    for finger, joints in zip(FINGERS, [("cmc", "mcp", "ip", "tip")] + [("mcp", "pip", "dip", "tip")] * 4, strict=True)
     for joint in joints
 )
 FINGERTIP_KEYPOINTS: dict[str, int] = {f: KEYPOINT_NAMES.index(f"{f}_tip") for f in FINGERS}

@@ -4,6 +4,7 @@ given time to start on a 2-core machine."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -43,7 +44,8 @@ def live_processes_with_env(name: str, value: str) -> list[str]:
                 and (entry / "stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
             ):
                 found.append(
-                    f"{entry.name}: {(entry / 'cmdline').read_bytes().replace(b'\0', b' ')[:160].decode(errors='replace')}"
+                    f"{entry.name}: "
+                    f"{(entry / 'cmdline').read_bytes().replace(b'\0', b' ')[:160].decode(errors='replace')}"
                 )
         except OSError:
             continue
@@ -52,10 +54,8 @@ def live_processes_with_env(name: str, value: str) -> list[str]:
 
 def kill_group(proc: subprocess.Popen) -> None:
     """SIGKILL to a process started with ``start_new_session`` and all it started; reaped."""
-    try:
+    with contextlib.suppress(ProcessLookupError):
         os.killpg(proc.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
     proc.wait(timeout=30)
 
 
@@ -186,3 +186,10 @@ def scripted_rollout_rows(task: str, method: str, n: int, steps: int, origin: st
             "reference_joints": [r.tolist() for r in rows["joint_target"]],
         }
     )
+
+
+def lerobot_frame(dataset, index: int) -> dict:
+    """One frame of a LeRobot dataset (its ``__getitem__`` is typed ``dict | list[dict]``, for slices)."""
+    frame = dataset[index]
+    assert isinstance(frame, dict)
+    return frame

@@ -42,7 +42,7 @@ def test_paper_profile_is_the_code_defaults() -> None:
 def test_bad_profile_names_file_and_field(tmp_path: Path, text: str, message: str) -> None:
     path = tmp_path / "mine.yaml"
     path.write_text(text)
-    with pytest.raises(ProfileError, match="mine.yaml") as err:
+    with pytest.raises(ProfileError, match=r"mine\.yaml") as err:
         load_profile(path)
     assert message in str(err.value)
 

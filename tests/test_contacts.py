@@ -87,6 +87,7 @@ def test_real_contacts_from_twintac_and_fsr(smoke_data: Path, ingested) -> None:
     for link in links:
         table, thresholds = replay_contacts(lake, link.replay, link.calibration_id, link.reference, ContactsConfig())
         df = table.to_pandas()
+        assert link.reference is not None
         assert (df.reference_id == link.reference["recording_id"]).all()
         assert df.t_ref.min() >= 0 and (df.t_ref <= df.t + 1e-9).all()  # replays run slower than the reference
         gt = pq.read_table(smoke_data / "groundtruth" / f"{Path(link.replay['path']).stem}.parquet").to_pandas()

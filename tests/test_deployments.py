@@ -20,6 +20,7 @@ import urllib.request
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import Any
 
 import pytest
 import yaml
@@ -53,7 +54,7 @@ def wait_http(url: str, proc: subprocess.Popen, log: Path, timeout_s: float = 18
     deadline = time.monotonic() + timeout_s
     while time.monotonic() < deadline:
         if proc.poll() is not None:
-            raise AssertionError(f"{proc.args[:4]} exited with {proc.returncode}:\n{log.read_text()[-4000:]}")
+            raise AssertionError(f"{proc.args!r:.200} exited with {proc.returncode}:\n{log.read_text()[-4000:]}")
         try:
             with urllib.request.urlopen(url, timeout=2) as r:
                 if r.status == 200:
@@ -64,7 +65,7 @@ def wait_http(url: str, proc: subprocess.Popen, log: Path, timeout_s: float = 18
     raise AssertionError(f"{url} not healthy after {timeout_s:.0f} s:\n{log.read_text()[-4000:]}")
 
 
-def api(base: str, method: str, path: str, body: dict | None = None) -> dict | list:
+def api(base: str, method: str, path: str, body: dict | None = None) -> Any:
     """A Prefect REST call (the test process itself never imports Prefect: its settings
     would be fixed for the rest of the session)."""
     data = json.dumps(body).encode() if body is not None else None
@@ -105,9 +106,21 @@ def servers(tmp_path: Path) -> Iterator[dict]:
         str(prefect_port),
     ]
     mlflow_cmd = [
-        sys.executable, "-m", "mlflow", "server", "--host", "127.0.0.1", "--port", str(mlflow_port), "--workers", "1",
-        "--backend-store-uri", f"sqlite:///{tmp_path / 'mlflow.db'}", "--artifacts-destination", str(tmp_path / "mlartifacts"),
-    ]  # fmt: skip
+        sys.executable,
+        "-m",
+        "mlflow",
+        "server",
+        "--host",
+        "127.0.0.1",
+        "--port",
+        str(mlflow_port),
+        "--workers",
+        "1",
+        "--backend-store-uri",
+        f"sqlite:///{tmp_path / 'mlflow.db'}",
+        "--artifacts-destination",
+        str(tmp_path / "mlartifacts"),
+    ]
     prefect_log, mlflow_log = tmp_path / "prefect-server.log", tmp_path / "mlflow-server.log"
     with (
         spawned(prefect_cmd, prefect_env, prefect_log) as prefect_proc,
@@ -208,7 +221,7 @@ def test_ingest_deployment_runs_on_a_worker_and_tracks_to_mlflow(servers: dict, 
 
     con = duckdb.connect(str(data / "catalog.duckdb"), read_only=True)
     try:
-        assert con.execute("SELECT count(*) FROM recordings WHERE status = 'ingested'").fetchone()[0] == len(files)
+        assert con.execute("SELECT count(*) FROM recordings WHERE status = 'ingested'").fetchone() == (len(files),)
     finally:
         con.close()
     # ...and its MLflow run arrived in the tracking server, artefacts included

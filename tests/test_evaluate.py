@@ -164,7 +164,11 @@ def test_lake_reading_sources_and_digest(scored: pd.DataFrame, tmp_path: Path) -
     lake = tmp_path / "lake"
     for (source, task, seq), rows in scored.groupby(["source", "task", "sequence_id"]):
         lake_io.write_rows(
-            lake, "contacts", seq, pa.Table.from_pandas(rows, preserve_index=False), {"source": source, "task": task}
+            lake,
+            "contacts",
+            str(seq),
+            pa.Table.from_pandas(rows, preserve_index=False),
+            {"source": str(source), "task": str(task)},
         )
     assert ev.evaluated_sources(lake) == ["real"]
     back = ev.read_contacts(lake, ["human", "real"])
@@ -310,7 +314,7 @@ def test_flow_logs_mlflow_runs_and_figures(evaluated: tuple[Path, dict]) -> None
     )
     client = mlflow.MlflowClient()
     pick = method_runs[method_runs["params.task"] == "pick"]["run_id"].iloc[0]
-    assert [a.path for a in client.list_artifacts(pick, "contact_timelines")][0].endswith(".png")
+    assert next(a.path for a in client.list_artifacts(pick, "contact_timelines")).endswith(".png")
     summary = runs[runs["tags.kind"] == "summary"]["run_id"].iloc[0]
     assert "metrics_by_method.png" in {a.path for a in client.list_artifacts(summary)}
     assert set(result["runs"].values()) == set(runs["run_id"])
@@ -342,7 +346,7 @@ def test_flow_rerun_replaces_and_follows_the_sources(evaluated: tuple[Path, dict
             "contacts",
             f"sim-{task}",
             pa.Table.from_pandas(rows, preserve_index=False),
-            {"source": "sim", "task": task},
+            {"source": "sim", "task": str(task)},
         )
     evaluate(profile="smoke", data=str(data))
     m = _table(data, "SELECT * FROM contact_metrics")

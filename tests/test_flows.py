@@ -66,6 +66,7 @@ def test_cache_survives_a_new_process(smoke_data: Path, tmp_path: Path) -> None:
     rows = catalog.query(DataLayout(data), "SELECT region, avg(contact::INT) FROM contacts GROUP BY ALL").num_rows
     assert rows == 8
     import mlflow
+    import mlflow.artifacts
 
     from tasks import tracking
 
@@ -73,14 +74,15 @@ def test_cache_survives_a_new_process(smoke_data: Path, tmp_path: Path) -> None:
     assert len(runs) == 2 and (runs["metrics.quarantined"] == 0).all()
     artifacts = mlflow.artifacts.list_artifacts(run_id=runs.run_id[0], artifact_path="contact_timelines")
     assert len(artifacts) == 4
-    assert str(data / "mlartifacts") in mlflow.get_experiment_by_name("touch2robot/ingest").artifact_location
+    experiment = mlflow.get_experiment_by_name("touch2robot/ingest")
+    assert experiment is not None and str(data / "mlartifacts") in experiment.artifact_location
 
 
 def test_sigkill_midway_then_rerun_resumes_from_cache(smoke_data: Path, tmp_path: Path) -> None:
     data = tmp_path / "data"
     _copy_recordings(smoke_data, data)
     # a bigger batch than smoke: extra copies under other names are distinct files with equal content
-    for i, p in enumerate(sorted((data / "recordings").glob("*_glove.mcap"))):
+    for p in sorted((data / "recordings").glob("*_glove.mcap")):
         for k in range(4):
             shutil.copy(p, data / "recordings" / f"copy{k}_{p.name}")
     results = data / "prefect" / "results"

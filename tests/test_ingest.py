@@ -174,4 +174,5 @@ def test_replays_link_to_calibration_and_reference(smoke_data: Path, tmp_path: P
         assert ingest_file(p, lake).status == "ingested"
     gloves, links, problems = link_replays(recording_rows(lake).to_pylist())
     assert len(gloves) == 1 and len(links) == 1 and problems == []
-    assert links[0].reference["recording_id"] == gloves[0]["recording_id"]
+    reference = links[0].reference
+    assert reference is not None and reference["recording_id"] == gloves[0]["recording_id"]

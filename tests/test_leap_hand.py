@@ -28,7 +28,11 @@ TIPS_AT_HOME = {
     "th_tip": (-0.0292, 0.0328, -0.1357),
 }
 HOME = {
-    **{f"{f}_{j}": v for f in hd.FINGERS for j, v in zip(("mcp", "rot", "pip", "dip"), (0.8, 0.0, 0.8, 0.8))},
+    **{
+        f"{f}_{j}": v
+        for f in hd.FINGERS
+        for j, v in zip(("mcp", "rot", "pip", "dip"), (0.8, 0.0, 0.8, 0.8), strict=True)
+    },
     "th_cmc": 0.8,
     "th_axl": 0.8,
     "th_mcp": 0.8,
@@ -79,8 +83,24 @@ def test_fingertip_fk_matches_reference_within_1mm(q: dict[str, float], expected
 
 def test_joint_names_order_ranges_and_servos_follow_the_reference() -> None:
     model = mujoco.MjModel.from_xml_string(hand_mjcf())
-    assert hd.JOINT_NAMES == ("if_mcp", "if_rot", "if_pip", "if_dip", "mf_mcp", "mf_rot", "mf_pip", "mf_dip",
-                              "rf_mcp", "rf_rot", "rf_pip", "rf_dip", "th_cmc", "th_axl", "th_mcp", "th_ipl")  # fmt: skip
+    assert hd.JOINT_NAMES == (
+        "if_mcp",
+        "if_rot",
+        "if_pip",
+        "if_dip",
+        "mf_mcp",
+        "mf_rot",
+        "mf_pip",
+        "mf_dip",
+        "rf_mcp",
+        "rf_rot",
+        "rf_pip",
+        "rf_dip",
+        "th_cmc",
+        "th_axl",
+        "th_mcp",
+        "th_ipl",
+    )
     assert [model.actuator(i).name for i in range(model.nu)] == list(hd.JOINT_NAMES)
     for i, name in enumerate(hd.JOINT_NAMES):
         np.testing.assert_allclose(model.joint(name).range, _range(name))

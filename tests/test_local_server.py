@@ -50,6 +50,7 @@ def wait_gone(pid: int, timeout_s: float = 10.0) -> bool:
 
 def test_child_dies_when_its_parent_is_killed() -> None:
     parent = subprocess.Popen([sys.executable, "-c", PARENT], stdout=subprocess.PIPE, text=True)
+    assert parent.stdout is not None
     child_pid = int(parent.stdout.readline())
     try:
         assert alive(child_pid)
@@ -79,6 +80,7 @@ def test_a_stop_request_notes_the_signal_instead_of_raising_and_restores_the_han
 def test_stop_reaches_grandchildren_that_ignore_sigterm() -> None:
     # a shell that starts a grandchild ignoring SIGTERM (as MLflow's job workers outlive theirs)
     proc = spawn_owned(["sh", "-c", "trap '' TERM; sleep 600 & echo $!; wait"], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
     grandchild = int(proc.stdout.readline())
     assert alive(grandchild)
     started = time.monotonic()
@@ -97,7 +99,8 @@ def processes_in(data: Path) -> list[str]:
             try:
                 if marker in (entry / "environ").read_bytes().split(b"\0") and alive(int(entry.name)):
                     found.append(
-                        f"{entry.name}: {(entry / 'cmdline').read_bytes().replace(b'\0', b' ')[:160].decode(errors='replace')}"
+                        f"{entry.name}: "
+                        f"{(entry / 'cmdline').read_bytes().replace(b'\0', b' ')[:160].decode(errors='replace')}"
                     )
             except OSError:
                 continue

@@ -47,9 +47,9 @@ def _assert_scores_match_sklearn(s: ContactScores, ref: np.ndarray, ev: np.ndarr
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         sk = {
-            "precision": precision_score(r, e, zero_division=np.nan) if r.size else math.nan,
-            "recall": recall_score(r, e, zero_division=np.nan) if r.size else math.nan,
-            "f1": f1_score(r, e, zero_division=np.nan) if r.size else math.nan,
+            "precision": precision_score(r, e, zero_division=np.nan) if r.size else math.nan,  # pyright: ignore[reportArgumentType]
+            "recall": recall_score(r, e, zero_division=np.nan) if r.size else math.nan,  # pyright: ignore[reportArgumentType]
+            "f1": f1_score(r, e, zero_division=np.nan) if r.size else math.nan,  # pyright: ignore[reportArgumentType]
         }
     fpr = s.fp / (s.fp + s.tn) if s.fp + s.tn else math.nan
     for name, defined in expected_defined.items():
@@ -236,7 +236,7 @@ def test_contact_counts_long_hand_example() -> None:
         {"method": "m", "task": "pick", "subject": "s1", "region": "T1", "tp": 2, "fp": 0, "fn": 0, "tn": 1}
     ]
     scored = contact_scores_table(counts, by=["method"])
-    assert scored.loc[0, ["precision", "recall", "f1", "fpr"]].tolist() == [1.0, 1.0, 1.0, 0.0]
+    assert scored[["precision", "recall", "f1", "fpr"]].iloc[0].tolist() == [1.0, 1.0, 1.0, 0.0]
     empty = contact_counts_long(_long(h), eval_source="real")
     assert list(empty.columns) == ["method", "task", "subject", "region", "tp", "fp", "fn", "tn"]
     assert empty.empty
@@ -397,6 +397,6 @@ def test_onset_error_long_region_absent_on_one_side() -> None:
     extra = _long([("real", "m", "pick", "s1", "A", "hA", 0.5, 0.25, "T3", True)])
     res = onset_error_ms_long(pd.concat([contacts, extra], ignore_index=True), tm, eval_source="real")
     assert res.pairs["region"].tolist() == ["T1", "T3", "P1"]
-    row = res.pairs.set_index("region").loc["T3"]
+    row = res.pairs[res.pairs["region"] == "T3"].iloc[0]
     assert math.isnan(row["t_ref_onset"]) and row["t_eval_onset"] == pytest.approx(0.25)
     assert res.n_missing_reference == 1

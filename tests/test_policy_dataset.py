@@ -11,10 +11,11 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
 import pyarrow.parquet as pq
 import pytest
 import torch
-from conftest import scripted_rollout_rows
+from conftest import lerobot_frame, scripted_rollout_rows
 
 from touch2robot import lake as lake_io
 from touch2robot import scenes
@@ -50,8 +51,13 @@ def lake(tmp_path_factory: pytest.TempPathFactory) -> Path:
     )
     kinematic = scripted_rollout_rows("pick", "contrack", 1, 10, origin="kinematic", seed=1)
     lake_io.write_rows(lake, "rollouts", "kinematic-pick", kinematic, partition={"method": "contrack"})
-    lake_io.write_rows(lake, "rollouts", "kinematic-drawer", scripted_rollout_rows("drawer", "dex-retargeting", 2, 12, origin="kinematic"),
-                       partition={"method": "dex-retargeting"})  # fmt: skip
+    lake_io.write_rows(
+        lake,
+        "rollouts",
+        "kinematic-drawer",
+        scripted_rollout_rows("drawer", "dex-retargeting", 2, 12, origin="kinematic"),
+        partition={"method": "dex-retargeting"},
+    )
     return lake
 
 
@@ -74,7 +80,7 @@ def test_origins_narrow_and_order_the_choice(lake: Path) -> None:
     only_kinematic = {(s.task, s.method, s.origin) for s in sources(lake, ("kinematic",))}
     assert ("drawer", "dex-retargeting", "kinematic") in only_kinematic
     assert all(origin == "kinematic" for _, _, origin in only_kinematic)
-    with pytest.raises(ValueError, match="policy.origins.*'replay'"):
+    with pytest.raises(ValueError, match=r"policy\.origins.*'replay'"):
         sources(lake, ("teacher", "replay"))
 
 
@@ -113,8 +119,13 @@ def test_policy_sources_share_their_demonstrations_per_task(tmp_path: Path) -> N
         scripted_rollout_rows("pick", "contrack", 3, 4),
         partition={"method": "contrack"},
     )
-    lake_io.write_rows(layout.lake, "rollouts", "kinematic-pick", scripted_rollout_rows("pick", "dex-retargeting", 2, 4, origin="kinematic"),
-                       partition={"method": "dex-retargeting"})  # fmt: skip
+    lake_io.write_rows(
+        layout.lake,
+        "rollouts",
+        "kinematic-pick",
+        scripted_rollout_rows("pick", "dex-retargeting", 2, 4, origin="kinematic"),
+        partition={"method": "dex-retargeting"},
+    )
     found = {s["method"]: s["references"] for s in rollout_sources(str(layout.root), CONFIG)}
     assert found == {"contrack": ["scripted-000", "scripted-001"], "dex-retargeting": ["scripted-000", "scripted-001"]}
     alone = rollout_sources(str(layout.root), CONFIG, methods=["contrack"])
@@ -135,7 +146,7 @@ def test_dataset_round_trips_through_lerobots_loader(dataset) -> None:
     assert ds.num_episodes == 3 and len(ds) == 90 and ds.fps == 20
     assert ds.meta.features["observation.state"]["names"] == list(STATE_NAMES)
     assert ds.meta.features["action"]["names"] == list(ACTION_NAMES)
-    frame = ds[31]  # episode 1, step 1
+    frame = lerobot_frame(ds, 31)  # episode 1, step 1
     assert frame["episode_index"] == 1 and frame["frame_index"] == 1
     assert frame["task"] == scenes.task("pick").instruction
     assert frame["observation.images.cam_left"].shape == (3, CONFIG.image_size, CONFIG.image_size)
@@ -144,7 +155,7 @@ def test_dataset_round_trips_through_lerobots_loader(dataset) -> None:
     np.testing.assert_allclose(frame["observation.state"][:16].numpy(), r.joint_position[1], atol=1e-5)
     np.testing.assert_allclose(frame["action"].numpy(), np.concatenate([r.joint_target[1], r.wrist_pose[1]]), atol=1e-6)
     assert frame["observation.environment_state"].shape == (8,)
-    forces = torch.stack([ds[i]["observation.environment_state"] for i in range(60, 90)])
+    forces = torch.stack([lerobot_frame(ds, i)["observation.environment_state"] for i in range(60, 90)])
     assert forces.max() > 0.5  # the scripted grasp touches the box: tactile forces are recorded
 
 
@@ -155,10 +166,12 @@ def test_column_views_give_lerobots_samples_decoding_only_the_window_images(
 
     import datasets.features.image as hf_image
     from lerobot.datasets.factory import make_dataset
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     summary, _ = dataset
     pipeline = pipeline_config(Path(summary.root), summary.repo_id, CONFIG, tmp_path / "out")
     plain, viewed = make_dataset(pipeline), make_dataset(pipeline)
+    assert isinstance(plain, LeRobotDataset) and isinstance(viewed, LeRobotDataset)
     column_views(viewed)
     decodes = []
     real_decode = hf_image.Image.decode_example
@@ -175,13 +188,15 @@ def test_column_views_give_lerobots_samples_decoding_only_the_window_images(
     assert counts["plain"] > 5 * counts["viewed"]  # LeRobot 0.6.1 decodes both images of every window row
     # identical samples, episode edges (padding) included
     for i in (0, 29, 30, 45, 89):
-        a, b = plain[i], viewed[i]
+        a, b = lerobot_frame(plain, i), lerobot_frame(viewed, i)
         assert a.keys() == b.keys()
         for key, value in a.items():
             assert torch.equal(value, b[key]) if isinstance(value, torch.Tensor) else value == b[key], (i, key)
     # DataLoader workers under spawn receive the reader by pickling
     clone = pickle.loads(pickle.dumps(viewed))
-    assert type(clone.reader) is type(viewed.reader) and torch.equal(clone[45]["action"], plain[45]["action"])
+    assert type(clone.reader) is type(viewed.reader) and torch.equal(
+        lerobot_frame(clone, 45)["action"], lerobot_frame(plain, 45)["action"]
+    )
 
 
 def test_bad_rollouts_file_is_named(tmp_path: Path, lake: Path) -> None:
@@ -192,7 +207,7 @@ def test_bad_rollouts_file_is_named(tmp_path: Path, lake: Path) -> None:
     pq.write_table(table.drop_columns(["joint_target"]), bad)
     with pytest.raises(RolloutError, match=r"teacher-pick.parquet: missing columns \['joint_target'\]"):
         read_rollouts(bad)
-    gap = table.filter(pa.compute.not_equal(table.column("step"), 3))
+    gap = table.filter(pc.not_equal(table.column("step"), 3))  # pyright: ignore[reportAttributeAccessIssue]
     pq.write_table(gap, bad)
     with pytest.raises(RolloutError, match="expected 0, 1, 2"):
         read_rollouts(bad)
@@ -202,7 +217,9 @@ def test_wilson_interval_matches_statsmodels() -> None:
     from statsmodels.stats.proportion import proportion_confint
 
     for k, n in ((0, 10), (3, 10), (10, 10), (17, 50)):
-        np.testing.assert_allclose(wilson_interval(k, n), proportion_confint(k, n, method="wilson"), atol=1e-9)
+        np.testing.assert_allclose(
+            wilson_interval(k, n), np.asarray(proportion_confint(k, n, method="wilson")), atol=1e-9
+        )
 
 
 @pytest.mark.slow

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from conftest import scripted_rollout_rows
+from conftest import lerobot_frame, scripted_rollout_rows
 
 from touch2robot import lake as lake_io
 from touch2robot.config import load_profile
@@ -56,8 +56,9 @@ def test_a_few_updates_lower_the_loss(trained) -> None:
 
 
 def test_training_resumes_from_the_last_checkpoint(trained) -> None:
-    summary, _, result, _, base = trained
-    assert last_checkpoint(base / "out").name == f"{CONFIG.steps:06d}"
+    summary, _, _, _, base = trained
+    checkpoint = last_checkpoint(base / "out")
+    assert checkpoint is not None and checkpoint.name == f"{CONFIG.steps:06d}"
     more = train(Path(summary.root), summary.repo_id, CONFIG, base / "out", steps=CONFIG.steps + CONFIG.log_freq)
     assert more.resumed_from == CONFIG.steps and more.steps == CONFIG.steps + CONFIG.log_freq
     assert np.isfinite(more.last_loss)
@@ -141,7 +142,7 @@ def test_training_where_cuda_is_available_logs_the_peak_gpu_memory(
     assert [m["gpu_mem_gb"] for _, m in logs] == [3.0, 3.0]
 
 
-def test_closed_loop_executes_16_predicted_actions_then_replans(trained) -> None:
+def test_closed_loop_executes_16_predicted_actions_then_replans(trained, monkeypatch: pytest.MonkeyPatch) -> None:
     _, rollouts, result, _, _ = trained
     sim = SimConfig(threads=1)
     scene = build_scene("pick", sim)
@@ -159,7 +160,7 @@ def test_closed_loop_executes_16_predicted_actions_then_replans(trained) -> None
         chunks.append(out)
         return out
 
-    policy.predict_action_chunk = recording
+    monkeypatch.setattr(policy, "predict_action_chunk", recording)
     starts = episode_starts(scene, rollouts, 1, seed=3, object_noise_m=CONFIG.object_noise_m)
     out = rollout_policy(policy, pre, post, scene, sim, starts, CONFIG, video_episodes=1, steps=40)
     assert out.steps == 40 and out.replans == 3 == len(chunks)  # steps 0, 16, 32
@@ -183,7 +184,7 @@ def test_action_fit_compares_the_executed_steps_with_the_recorded_actions(traine
     ds = LeRobotDataset(summary.repo_id, root=summary.root)
     joint, wrist = [], []
     for ep in range(ds.num_episodes):
-        frames = [ds[i] for i in range(len(ds)) if int(ds[i]["episode_index"]) == ep]
+        frames = [f for f in (lerobot_frame(ds, i) for i in range(len(ds))) if int(f["episode_index"]) == ep]
         state = np.stack([f["observation.state"].numpy() for f in frames])
         action = np.stack([f["action"].numpy() for f in frames])
         for t in range(len(frames)):
@@ -251,8 +252,12 @@ def test_policy_flow_fills_policy_eval_and_mlflow(tmp_path: Path) -> None:
     assert [(r["task"], r["method"], r["origin"], r["episodes"], r["dataset_episodes"]) for r in rows] == [
         ("pick", "contrack", "teacher", CONFIG.eval_episodes, 2)
     ]
-    table = catalog.query(layout, "SELECT task, method, episodes, ci_low <= success_rate AND success_rate <= ci_high AS inside, "
-                                  "fit_wrist_err_mm > 0 AND hold_wrist_err_mm > 0 AS fitted, replay_successes BETWEEN 0 AND episodes AS replayed FROM policy_eval")  # fmt: skip
+    table = catalog.query(
+        layout,
+        "SELECT task, method, episodes, ci_low <= success_rate AND success_rate <= ci_high AS inside, "
+        "fit_wrist_err_mm > 0 AND hold_wrist_err_mm > 0 AS fitted, replay_successes BETWEEN 0 AND episodes AS replayed "
+        "FROM policy_eval",
+    )
     assert table.to_pylist() == [
         {
             "task": "pick",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -104,7 +105,7 @@ def test_rosbags_reads_our_files(tmp_path: Path) -> None:
     _write_replay(path)
     with AnyReader([path]) as reader:
         conns = [c for c in reader.connections if c.topic == "/leap/joint_states"]
-        msgs = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(connections=conns)]
+        msgs: list[Any] = [reader.deserialize(raw, c.msgtype) for c, _, raw in reader.messages(connections=conns)]
     assert len(msgs) == 3
     assert list(msgs[1].name) == list(LEAP_JOINT_NAMES)
     np.testing.assert_allclose(msgs[1].position, np.full(16, 0.1))
@@ -112,8 +113,10 @@ def test_rosbags_reads_our_files(tmp_path: Path) -> None:
 
 def test_writer_leaves_no_file_on_error(tmp_path: Path) -> None:
     path = tmp_path / "g.mcap"
-    with pytest.raises(RuntimeError):
-        with RecordingWriter(path, "glove_session", {"task": "pick", "subject": "s01"}) as w:
-            w.write("/glove/hand_joints", 1, cdr.encode_joint_state(1, "glove", GLOVE_JOINT_NAMES, np.zeros(20)))
-            raise RuntimeError("recorder crashed")
+    with (
+        pytest.raises(RuntimeError),
+        RecordingWriter(path, "glove_session", {"task": "pick", "subject": "s01"}) as w,
+    ):
+        w.write("/glove/hand_joints", 1, cdr.encode_joint_state(1, "glove", GLOVE_JOINT_NAMES, np.zeros(20)))
+        raise RuntimeError("recorder crashed")
     assert list(tmp_path.iterdir()) == []

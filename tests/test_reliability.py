@@ -13,6 +13,7 @@ fixes its settings per process, and (b) needs a process to kill."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -44,6 +45,13 @@ from flows.{module} import {flow}
 result = {flow}(profile="smoke", data=sys.argv[1])
 print("RESULT " + json.dumps(result, default=str))
 """
+
+
+def _one_row(con: duckdb.DuckDBPyConnection, sql: str, params: list | None = None) -> tuple:
+    """The row of a query that returns exactly one."""
+    row = con.execute(sql, params).fetchone()
+    assert row is not None
+    return row
 
 
 def flow_env(data: Path) -> dict[str, str]:
@@ -97,10 +105,8 @@ def live_processes_with(data: Path) -> list[str]:
 def kill_survivors(data: Path) -> None:
     """SIGKILL what a failed test left running in ``data`` (processes this test started)."""
     for line in live_processes_with(data):
-        try:
+        with contextlib.suppress(ProcessLookupError):
             os.kill(int(line.split(":")[0]), signal.SIGKILL)
-        except ProcessLookupError:
-            pass
 
 
 def smoke_recordings(data: Path) -> list[Path]:
@@ -139,7 +145,7 @@ def test_two_concurrent_ingests_on_one_folder(tmp_path: Path, processes: list[su
     processes.extend(start_flow("ingest", "ingest", data, log) for log in logs)
     for proc in processes:
         proc.wait(timeout=600)
-    results = [finished(proc, log) for proc, log in zip(processes, logs)]
+    results = [finished(proc, log) for proc, log in zip(processes, logs, strict=True)]
 
     for result in results:
         assert result["files"] == len(files) and result["quarantined"] == 0
@@ -153,11 +159,11 @@ def test_two_concurrent_ingests_on_one_folder(tmp_path: Path, processes: list[su
             len(files),
         )
         for (table, rid), n in expected.items():
-            got = con.execute(f"SELECT count(*) FROM {table} WHERE recording_id = ?", [rid]).fetchone()[0]
+            (got,) = _one_row(con, f"SELECT count(*) FROM {table} WHERE recording_id = ?", [rid])
             assert got == n, f"{table} holds {got} rows of {rid}, one ingest writes {n}"
-        total, distinct = con.execute(
-            "SELECT count(*), count(DISTINCT (source, sequence_id, t, region)) FROM contacts"
-        ).fetchone()
+        total, distinct = _one_row(
+            con, "SELECT count(*), count(DISTINCT (source, sequence_id, t, region)) FROM contacts"
+        )
         assert total == distinct > 0, "duplicate contact rows"
     finally:
         con.close()
@@ -259,9 +265,9 @@ def test_sigkill_of_the_command_alone_leaves_nothing_running_and_the_rerun_resum
     con = duckdb.connect(str(data / "catalog.duckdb"), read_only=True)
     try:
         assert con.execute("SELECT count(*), count(DISTINCT recording_id) FROM recordings").fetchone() == (files, files)
-        total, distinct = con.execute(
-            "SELECT count(*), count(DISTINCT (source, sequence_id, t, region)) FROM contacts"
-        ).fetchone()
+        total, distinct = _one_row(
+            con, "SELECT count(*), count(DISTINCT (source, sequence_id, t, region)) FROM contacts"
+        )
         assert total == distinct > 0, "duplicate contact rows"
     finally:
         con.close()

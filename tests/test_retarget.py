@@ -93,7 +93,7 @@ def test_urdf_kinematics_match_the_hand_description(retargeter: Retargeter) -> N
     base_from_palm = quat_to_mat(np.asarray(hd.PALM_IN_WRIST_QUAT))
     for _ in range(5):
         q = rng.uniform(kin.lower, kin.upper)
-        tips = hd.tip_positions_in_palm(dict(zip(hd.JOINT_NAMES, q)))
+        tips = hd.tip_positions_in_palm(dict(zip(hd.JOINT_NAMES, q, strict=True)))
         expected = np.stack(
             [
                 base_from_palm @ tips[s] + np.asarray(hd.PALM_IN_WRIST_POS)
@@ -185,7 +185,7 @@ def _frames(motion: HandMotion) -> np.ndarray:
 class _FailingOptimizer:
     """NLopt's optimizer with a switch that makes ``optimize`` raise (a mocked solver error)."""
 
-    def __init__(self, opt: object, error: Exception) -> None:
+    def __init__(self, opt: nlopt.opt, error: Exception) -> None:
         self._opt, self._error, self.fail = opt, error, False
 
     def optimize(self, x0: list[float]) -> np.ndarray:
@@ -211,7 +211,7 @@ def test_a_failed_frame_holds_the_previous_solution_and_is_flagged(demos: dict, 
             rt.optimizer.opt,
             RuntimeError("nlopt failure") if failure == "solver_runtime_error" else nlopt.RoundoffLimited(),
         )
-        rt.optimizer.opt = proxy
+        rt.optimizer.opt = proxy  # pyright: ignore[reportAttributeAccessIssue]  a test double in its place
     out, status = [], []
     for i in range(k + 3):
         kp = frames[i].copy()

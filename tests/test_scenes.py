@@ -148,7 +148,7 @@ def test_render_saves_both_cameras_of_every_scene(tmp_path: Path) -> None:
         assert image.std() > 10  # not a blank frame
 
 
-def _fingertip_ik(targets: dict[str, tuple[float, float, float]], q0: np.ndarray) -> np.ndarray:
+def _fingertip_ik(targets: dict[str, np.ndarray], q0: np.ndarray) -> np.ndarray:
     """Joint angles (within limits) putting the given fingertip sites at palm-frame points."""
     from scipy.optimize import least_squares
 
@@ -159,7 +159,7 @@ def _fingertip_ik(targets: dict[str, tuple[float, float, float]], q0: np.ndarray
     high = np.array([joints[n].upper for n in hd.JOINT_NAMES])
 
     def residual(q: np.ndarray) -> np.ndarray:
-        tips = hd.tip_positions_in_palm(dict(zip(hd.JOINT_NAMES, q)))
+        tips = hd.tip_positions_in_palm(dict(zip(hd.JOINT_NAMES, q, strict=True)))
         return np.concatenate([tips[s] - t for s, t in targets.items()] + [0.01 * (q - q0)])
 
     return least_squares(residual, q0, bounds=(low, high)).x

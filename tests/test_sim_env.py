@@ -112,7 +112,7 @@ def test_rsl_vec_env_contract() -> None:
     obs = venv.get_observations()
     assert isinstance(obs, TensorDict) and set(obs.keys()) == {"actor", "critic"}
     assert obs["actor"].shape == (5, 64) and obs["actor"].dtype == torch.float32
-    for k in range(5):
+    for _ in range(5):
         obs, rew, dones, extras = venv.step(torch.zeros(5, 16))
         assert rew.shape == (5,) and dones.shape == (5,)
         assert set(extras) == {"time_outs", "log"}
@@ -155,6 +155,7 @@ def test_wrist_follows_a_world_pose_trajectory() -> None:
         errors.append(np.linalg.norm(env.wrist_pose[0, :3] - pos))
         angle_errors.append(abs(twist_angle(env.wrist_pose[0, 3:], quat0, np.array([0.0, 0.0, 1.0])) - yaw))
     print(
-        f"wrist tracking error while moving: {max(errors[5:]) * 1e3:.1f} mm, {np.degrees(max(angle_errors[5:])):.2f} deg"
+        f"wrist tracking error while moving: {max(errors[5:]) * 1e3:.1f} mm, {np.degrees(max(angle_errors[5:])):.2f} "
+        "deg"
     )
     assert max(errors[5:]) < 0.01 and max(angle_errors[5:]) < np.radians(3)  # within 1 cm / 3 deg while moving

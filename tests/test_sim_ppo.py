@@ -18,12 +18,28 @@ TRAIN_CFG = {
     "num_steps_per_env": 20,
     "save_interval": 10_000,
     "obs_groups": {"actor": ["actor"], "critic": ["critic"]},
-    "actor": {"class_name": "MLPModel", "hidden_dims": [32, 32], "activation": "elu", "obs_normalization": True,
-              "distribution_cfg": {"class_name": "GaussianDistribution", "init_std": 0.8}},
+    "actor": {
+        "class_name": "MLPModel",
+        "hidden_dims": [32, 32],
+        "activation": "elu",
+        "obs_normalization": True,
+        "distribution_cfg": {"class_name": "GaussianDistribution", "init_std": 0.8},
+    },
     "critic": {"class_name": "MLPModel", "hidden_dims": [32, 32], "activation": "elu", "obs_normalization": True},
-    "algorithm": {"class_name": "PPO", "num_learning_epochs": 5, "num_mini_batches": 4, "learning_rate": 1e-3, "clip_param": 0.2,
-                  "max_grad_norm": 1.0, "gamma": 0.96, "lam": 0.95, "desired_kl": 0.016, "entropy_coef": 0.0, "schedule": "adaptive"},
-}  # fmt: skip
+    "algorithm": {
+        "class_name": "PPO",
+        "num_learning_epochs": 5,
+        "num_mini_batches": 4,
+        "learning_rate": 1e-3,
+        "clip_param": 0.2,
+        "max_grad_norm": 1.0,
+        "gamma": 0.96,
+        "lam": 0.95,
+        "desired_kl": 0.016,
+        "entropy_coef": 0.0,
+        "schedule": "adaptive",
+    },
+}
 
 
 def _mean_episode_return(runner: OnPolicyRunner, env: RslVecEnv) -> float:

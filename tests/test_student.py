@@ -98,7 +98,7 @@ def dataset(student_lake: Path, references: dict) -> pa.Table:
     for task in TASKS:
         seqs = paired_sequences(_teacher_rows(student_lake, task), references, 0.5)
         table = augment(seqs, 4, 0.1, 0, val=seqs)
-        tables.append(table.filter(pc.equal(table["split"], "val" if task == "pick" else "train")))
+        tables.append(table.filter(pc.equal(table["split"], "val" if task == "pick" else "train")))  # pyright: ignore[reportAttributeAccessIssue]
     return pa.concat_tables(tables)
 
 
@@ -120,7 +120,7 @@ def test_split_is_by_demonstration_and_flags_in_sample() -> None:
 def test_paired_steps_follow_the_teacher(student_lake: Path, references: dict) -> None:
     rows = _teacher_rows(student_lake, "wipe")
     seq = paired_sequences(rows, references, 0.5)[0]
-    first = rows.filter(pc.equal(rows["rollout_id"], seq.source_rollout_id))
+    first = rows.filter(pc.equal(rows["rollout_id"], seq.source_rollout_id))  # pyright: ignore[reportAttributeAccessIssue]
     target = ro.column(first, "joint_target")
     # step j pairs frame j's kinematic joints with the command of row j - 1 (aimed at frame j)
     np.testing.assert_allclose(seq.target_joints, target[:-1])
@@ -141,7 +141,7 @@ def test_augmentation_shares_the_noise_and_is_seeded(student_lake: Path, referen
     ids = table["sample_id"].unique().to_pylist()
     assert len(ids) == 7 and table["augment"].to_pylist()[-1] == 3  # 2 unchanged, then copies
     inputs, targets = ro.column(table, "kinematic_joints"), ro.column(table, "target_joints")
-    augmented = pc.greater(table["augment"], 0).to_numpy(zero_copy_only=False)
+    augmented = pc.greater(table["augment"], 0).to_numpy(zero_copy_only=False)  # pyright: ignore[reportAttributeAccessIssue]
     noise = inputs - np.concatenate([seqs[0].joints, seqs[1].joints] * 4)[: len(inputs)]
     assert not augmented[: 2 * len(seqs[0].step)].any()
     assert 0.08 < noise[augmented].std() < 0.12 and np.abs(noise[~augmented]).max() < 1e-6
@@ -159,16 +159,20 @@ def _clouds() -> torch.Tensor:
 @pytest.fixture(scope="module")
 def trained(dataset: pa.Table, tmp_path_factory: pytest.TempPathFactory):
     torch.set_num_threads(1)
-    part = lambda s: windows_from_table(dataset.filter(pc.equal(dataset["split"], s)), TASKS, TINY.history)  # noqa: E731
+    part = lambda s: windows_from_table(dataset.filter(pc.equal(dataset["split"], s)), TASKS, TINY.history)  # noqa: E731  # pyright: ignore[reportAttributeAccessIssue]
     folder = tmp_path_factory.mktemp("student-ckpt")
     logged: dict[int, dict[str, float]] = {}
+
+    def log(step: int, metrics: dict[str, float]) -> None:
+        logged.setdefault(step, metrics)
+
     result = train(
         part("train"),
         part("val"),
         _clouds(),
         TINY,
         folder,
-        on_log=lambda step, metrics: logged.setdefault(step, metrics),
+        on_log=log,
     )
     return result, part, folder, logged
 
@@ -199,13 +203,17 @@ def test_a_training_stopped_midway_resumes_to_the_one_never_stopped(trained, tmp
     stopped = train(part("train"), part("val"), _clouds(), TINY, folder, should_stop=lambda: next(updates) >= 25)
     assert stopped.steps == 25 and torch.load(folder / CHECKPOINT, weights_only=False)["step"] == 25
     resumed_log: dict[int, dict[str, float]] = {}
+
+    def log_resumed(step: int, metrics: dict[str, float]) -> None:
+        resumed_log.setdefault(step, metrics)
+
     resumed = train(
         part("train"),
         part("val"),
         _clouds(),
         TINY,
         folder,
-        on_log=lambda step, metrics: resumed_log.setdefault(step, metrics),
+        on_log=log_resumed,
     )
     assert resumed.resumed_from == 25 and resumed.steps == TINY.steps
     assert resumed_log == {step: logged[step] for step in (40, 60)}
@@ -269,7 +277,7 @@ def test_executing_the_teachers_own_commands_reproduces_its_rollout(student_lake
         env, DemoTracking(stack_references([ref]), TEACHER, "touch2robot"), [perfect], TEACHER, "touch2robot"
     )
     env.close()
-    teacher = rows.filter(pc.equal(rows["rollout_id"], seq.source_rollout_id))
+    teacher = rows.filter(pc.equal(rows["rollout_id"], seq.source_rollout_id))  # pyright: ignore[reportAttributeAccessIssue]
     assert student_rows.num_rows == teacher.num_rows and student_rows["origin"][0].as_py() == "student"
     np.testing.assert_allclose(
         ro.column(student_rows, "joint_position"), ro.column(teacher, "joint_position"), atol=1e-6
@@ -329,7 +337,7 @@ def test_student_flow_end_to_end(student_lake: Path, tmp_path: Path) -> None:
     assert out["split"]["in_sample"] and {r["task"] for r in out["heldout"]} == set(TASKS)
 
     data = pa.concat_tables([pq.read_table(p) for p in lake_io.files(layout.lake, "student_dataset")])
-    train_rows = data.filter(pc.equal(data["split"], "train"))
+    train_rows = data.filter(pc.equal(data["split"], "train"))  # pyright: ignore[reportAttributeAccessIssue]
     assert len(train_rows["sample_id"].unique()) == 16  # balanced over the 3 trained tasks; drawer validates
     for task in TASKS:
         assert lake_io.file_path(layout.lake, "rollouts", f"student-{task}", {"method": "touch2robot"}).is_file()
@@ -344,7 +352,9 @@ def test_student_flow_end_to_end(student_lake: Path, tmp_path: Path) -> None:
     full = trained["full"]["mlflow_run"]
     assert any(k.startswith("heldout/pick/") for k in mlflow.get_run(full).data.metrics)
     model = mlflow.pyfunc.load_model(f"runs:/{full}/model")
-    example = np.zeros((2, model.metadata.get_input_schema().inputs[0].shape[1]), dtype=np.float32)
+    schema = model.metadata.get_input_schema()
+    assert schema is not None
+    example = np.zeros((2, schema.inputs[0].shape[1]), dtype=np.float32)
     assert model.predict(example).shape == (2, 30)
 
     again = student(profile="smoke", data=str(root))

@@ -36,7 +36,8 @@ def test_teachers_flow_writes_rollouts_contacts_and_mlflow_runs(demo_lake: Path,
     }
     counts = catalog.query(
         layout,
-        "SELECT method, origin, count(DISTINCT rollout_id) AS n, bool_and(t_ref >= 0) AS clocked FROM rollouts GROUP BY ALL ORDER BY method",
+        "SELECT method, origin, count(DISTINCT rollout_id) AS n, bool_and(t_ref >= 0) AS clocked FROM rollouts GROUP "
+        "BY ALL ORDER BY method",
     ).to_pylist()
     assert counts == [
         {"method": "dex-retargeting", "origin": "kinematic", "n": 1, "clocked": True},
@@ -65,7 +66,8 @@ def test_teachers_flow_writes_rollouts_contacts_and_mlflow_runs(demo_lake: Path,
     evaluate(profile="smoke", data=str(root))  # the sim contacts are scored like any other source
     f1 = catalog.query(
         layout,
-        "SELECT method, f1 FROM contact_metrics WHERE source = 'sim' AND task = 'wipe' AND region = '*' ORDER BY method",
+        "SELECT method, f1 FROM contact_metrics WHERE source = 'sim' AND task = 'wipe' AND region = '*' ORDER BY "
+        "method",
     ).to_pylist()
     assert [r["method"] for r in f1] == ["dex-retargeting", "touch2robot"] and all(0 <= r["f1"] <= 1 for r in f1)
     assert abs(f1[1]["f1"] - teacher["contact_f1"]) <= 5e-4  # the flow's figure (3 decimals) is the evaluation's

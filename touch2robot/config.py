@@ -37,7 +37,7 @@ class Profile(BaseModel):
     # torch keeps one RNG per process: trainings side by side in threads would take turns on it
     # and none would repeat (nor equal the same training run alone), so they get processes
     training_runner: RunnerConfig = Field(
-        RunnerConfig(kind="processes"),
+        default=RunnerConfig(kind="processes"),
         description="runner of the training fan-outs (teachers, student variants, policy): one process per training",
     )
     teacher: TeacherConfig = TeacherConfig()

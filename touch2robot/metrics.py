@@ -546,10 +546,7 @@ def onset_error_ms(trajectories: Iterable[OnsetTrajectory], regions: Sequence[st
                 raise ValueError(f"{tr.trajectory}: {name} must have shape ({t.size}, {len(regions)}); got {c.shape}")
         if (tr.time_map_t is None) != (tr.time_map_t_ref is None):
             raise ValueError(f"{tr.trajectory}: give both time_map_t and time_map_t_ref or neither")
-        if tr.time_map_t is None:
-            ev_ref_t = ev_t
-        else:
-            ev_ref_t = map_to_reference_time(ev_t, tr.time_map_t, tr.time_map_t_ref)
+        ev_ref_t = ev_t if tr.time_map_t is None else map_to_reference_time(ev_t, tr.time_map_t, tr.time_map_t_ref)
         in_map = ~np.isnan(ev_ref_t)
         ref_on = _first_onsets(ref_t, ref_c)
         # The onset is found on the replay clock and then mapped: the map is monotone, so this

@@ -26,13 +26,15 @@ class RunnerConfig(BaseModel):
 
     kind: Literal["threads", "processes", "dask"] = "threads"
     max_workers: int | None = Field(
-        None, ge=1, description="pool size of threads/processes; None: Prefect's default (the CPU count)"
+        default=None, ge=1, description="pool size of threads/processes; None: Prefect's default (the CPU count)"
     )
     dask_address: str | None = Field(
-        None, description="address of an existing Dask scheduler (production); None: a LocalCluster"
+        default=None, description="address of an existing Dask scheduler (production); None: a LocalCluster"
     )
-    n_workers: int = Field(2, ge=1, description="LocalCluster worker processes (kind dask without dask_address)")
-    threads_per_worker: int = Field(1, ge=1, description="threads per LocalCluster worker process")
+    n_workers: int = Field(
+        default=2, ge=1, description="LocalCluster worker processes (kind dask without dask_address)"
+    )
+    threads_per_worker: int = Field(default=1, ge=1, description="threads per LocalCluster worker process")
 
     @model_validator(mode="after")
     def _consistent(self) -> Self:

@@ -13,11 +13,11 @@ class ContactsConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     baseline_quantile: float = Field(
-        0.10, gt=0, lt=0.5, description="per-taxel resting level = this quantile over the recording"
+        default=0.10, gt=0, lt=0.5, description="per-taxel resting level = this quantile over the recording"
     )
-    smoothing_samples: int = Field(5, ge=1, description="moving-average window on regional responses")
-    glove_noise_k: float = Field(5.0, gt=0, description="threshold = k x robust noise of the regional response")
+    smoothing_samples: int = Field(default=5, ge=1, description="moving-average window on regional responses")
+    glove_noise_k: float = Field(default=5.0, gt=0, description="threshold = k x robust noise of the regional response")
     twintac_noise_k: float = Field(
-        6.0, gt=0, description="threshold = calibration mean + k x calibration std, per channel"
+        default=6.0, gt=0, description="threshold = calibration mean + k x calibration std, per channel"
     )
     fsr_threshold: float = 0.0

@@ -41,7 +41,10 @@ def human_contacts(lake: Path, recording: dict, config: ContactsConfig) -> tuple
         contact=contact[:, keep], value=resp[:, keep],
     )  # fmt: skip
     baseline = float(np.median(thr.baseline[np.asarray(TAXEL_REGION) != "-"]))
-    method = f"k*robust-noise of the smoothed regional response (k={config.glove_noise_k}, window={config.smoothing_samples})"
+    method = (
+        "k*robust-noise of the smoothed regional response "
+        f"(k={config.glove_noise_k}, window={config.smoothing_samples})"
+    )
     thresholds = pa.table(
         {
             "recording_id": [rid, rid],

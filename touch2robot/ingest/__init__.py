@@ -107,7 +107,9 @@ def superseded_ids(lake: Path, current: dict[str, str]) -> list[str]:
     """Ids of earlier versions of files whose content changed: ``current`` maps each
     ingested path to its present id; any other id recorded for the same path is stale."""
     table = recording_rows(lake).to_pydict()
-    return sorted({rid for rid, p in zip(table["recording_id"], table["path"]) if p in current and current[p] != rid})
+    return sorted(
+        {rid for rid, p in zip(table["recording_id"], table["path"], strict=True) if p in current and current[p] != rid}
+    )
 
 
 @dataclass(frozen=True)

@@ -145,10 +145,11 @@ def _decode_topic(path: Path, topic: Topic, channel: Channel, schema: Schema | N
         i = int(np.flatnonzero(steps <= 0)[0]) + 1
         raise RecordingError(
             path,
-            f"{where}: timestamps not strictly increasing at message {i} ({batch.stamp_ns[i]} ns after {batch.stamp_ns[i - 1]} ns)",
+            f"{where}: timestamps not strictly increasing at message {i} ({batch.stamp_ns[i]} ns after "
+            f"{batch.stamp_ns[i - 1]} ns)",
         )
     if topic.joint_names is not None:
-        batch = _order_joints(path, topic, batch)
+        batch = _order_joints(path, topic.name, topic.joint_names, batch)
     for name, values in batch.fields.items():
         if name in ("velocity", "effort") and values.shape[1] == 0:
             continue  # optional in sensor_msgs/JointState
@@ -245,7 +246,7 @@ def _check_span(path: Path, decoded: dict[str, Batch], start: int, end: int) -> 
 
 
 def _expected_width(topic: Topic, name: str) -> int | None:
-    if name == "poses":
+    if name == "poses" and topic.array_len is not None:
         return 7 * topic.array_len
     if name in ("values", "position", "velocity", "effort"):
         return topic.array_len
@@ -254,20 +255,21 @@ def _expected_width(topic: Topic, name: str) -> int | None:
     return None
 
 
-def _order_joints(path: Path, topic: Topic, batch: Batch) -> Batch:
+def _order_joints(path: Path, topic_name: str, joint_names: tuple[str, ...], batch: Batch) -> Batch:
     """Put JointState columns in the contract's joint order (rigs may order them differently)."""
     names = tuple(batch.names or ())
-    if names == topic.joint_names:
+    if names == joint_names:
         return batch
-    absent = [n for n in topic.joint_names if n not in names]
+    absent = [n for n in joint_names if n not in names]
     if absent:
         raise RecordingError(
             path,
-            f"topic {topic.name}: joint names lack {', '.join(absent)} ({len(names)} joints, expected {len(topic.joint_names)})",
+            f"topic {topic_name}: joint names lack {', '.join(absent)} ({len(names)} joints, expected "
+            f"{len(joint_names)})",
         )
-    order = [names.index(n) for n in topic.joint_names]
+    order = [names.index(n) for n in joint_names]
     fields = {k: (v[:, order] if v.shape[1] == len(names) else v) for k, v in batch.fields.items()}
-    return Batch(batch.stamp_ns, fields, batch.frame_ids, topic.joint_names)
+    return Batch(batch.stamp_ns, fields, batch.frame_ids, joint_names)
 
 
 def counts_json(counts: dict[str, int]) -> str:

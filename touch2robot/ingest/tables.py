@@ -49,8 +49,9 @@ def stream_tables(rec: DecodedRecording) -> dict[str, pa.Table]:
         elif topic.table in ("hand_joints", "robot_joint_targets"):
             cols["position"] = _fixed_list(f["position"], pa.float32())
         elif topic.table == "robot_joint_states":
+            width = f["position"].shape[1]  # the contract's array_len, checked when the recording was read
             for name in ("position", "velocity", "effort"):
-                v = f[name] if f[name].shape[1] else np.full((n, topic.array_len), np.nan)
+                v = f[name] if f[name].shape[1] else np.full((n, width), np.nan)
                 cols[name] = _fixed_list(v, pa.float32())
         elif topic.table == "hand_keypoints":
             xyz = f["poses"].reshape(n, -1, 7)[:, :, :3].reshape(n, -1)

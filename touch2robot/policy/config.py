@@ -19,59 +19,66 @@ class PolicyConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     # --- datasets
-    tasks: tuple[str, ...] | None = Field(None, description="tasks to learn; None = every task with rollouts")
+    tasks: tuple[str, ...] | None = Field(default=None, description="tasks to learn; None = every task with rollouts")
     methods: tuple[str, ...] | None = Field(
-        None, description="data-collection methods to compare; None = every method with rollouts"
+        default=None, description="data-collection methods to compare; None = every method with rollouts"
     )
     origins: tuple[str, ...] = Field(
-        ("student", "teacher", "kinematic"),
+        default=("student", "teacher", "kinematic"),
         min_length=1,
         description="rollout origins a method's dataset may come from, most preferred first "
         "(e.g. [teacher, kinematic] compares every method on its teacher's rollouts)",
     )
     same_demonstrations: bool = Field(
-        True,
+        default=True,
         description="one episode per human demonstration (the first rollout following it), and only the demonstrations "
         "every compared method of the task has: datasets that differ only in how each method turned the same human "
         "demonstrations into robot ones; false = every rollout of each method's file",
     )
     # ResNet-18 (BatchNorm) needs feature maps larger than 1x1: below about 40 px training fails
-    image_size: int = Field(224, ge=40, description="square RGB image side (px) of both camera views")
-    cameras: tuple[str, ...] = Field(("cam_left", "cam_right"), min_length=1, description="scene cameras recorded")
-    max_rollouts: int | None = Field(None, ge=1, description="rollouts per task x method put in a dataset; None = all")
+    image_size: int = Field(default=224, ge=40, description="square RGB image side (px) of both camera views")
+    cameras: tuple[str, ...] = Field(
+        default=("cam_left", "cam_right"), min_length=1, description="scene cameras recorded"
+    )
+    max_rollouts: int | None = Field(
+        default=None, ge=1, description="rollouts per task x method put in a dataset; None = all"
+    )
     replay_batch: int = Field(
-        16, ge=1, description="rollouts replayed (and rendered) together as copies of one BatchEnv"
+        default=16, ge=1, description="rollouts replayed (and rendered) together as copies of one BatchEnv"
     )
     # --- Diffusion Policy (Table IX); None = LeRobot's default
-    n_obs_steps: int = Field(5, ge=1, description="observation steps the policy conditions on")
-    horizon: int = Field(24, ge=1, description="action steps predicted per inference")
-    n_action_steps: int = Field(16, ge=1, description="predicted steps executed before replanning")
-    lr: float = Field(1e-4, gt=0, description="Adam learning rate")
-    weight_decay: float = Field(1e-6, ge=0, description="Adam weight decay")
-    batch_size: int = Field(64, ge=1)
-    steps: int = Field(50_000, ge=1, description="optimizer updates")
-    down_dims: tuple[int, ...] | None = Field(None, min_length=1, description="UNet widths (small profiles shrink it)")
-    num_inference_steps: int | None = Field(None, ge=1, description="reverse diffusion steps at inference")
-    scheduler_warmup_steps: int | None = Field(None, ge=0, description="LR warm-up updates")
+    n_obs_steps: int = Field(default=5, ge=1, description="observation steps the policy conditions on")
+    horizon: int = Field(default=24, ge=1, description="action steps predicted per inference")
+    n_action_steps: int = Field(default=16, ge=1, description="predicted steps executed before replanning")
+    lr: float = Field(default=1e-4, gt=0, description="Adam learning rate")
+    weight_decay: float = Field(default=1e-6, ge=0, description="Adam weight decay")
+    batch_size: int = Field(default=64, ge=1)
+    steps: int = Field(default=50_000, ge=1, description="optimizer updates")
+    down_dims: tuple[int, ...] | None = Field(
+        default=None, min_length=1, description="UNet widths (small profiles shrink it)"
+    )
+    num_inference_steps: int | None = Field(default=None, ge=1, description="reverse diffusion steps at inference")
+    scheduler_warmup_steps: int | None = Field(default=None, ge=0, description="LR warm-up updates")
     # --- training loop
-    save_freq: int = Field(10_000, ge=1, description="LeRobot checkpoint every N updates (the resume point)")
-    log_freq: int = Field(100, ge=1, description="loss and learning rate to MLflow every N updates")
-    num_workers: int = Field(4, ge=0, description="data-loader worker processes")
-    device: str | None = Field(None, description="torch device; None = CUDA when available, else CPU")
-    seed: int = Field(1000, description="training seed (LeRobot's default)")
+    save_freq: int = Field(default=10_000, ge=1, description="LeRobot checkpoint every N updates (the resume point)")
+    log_freq: int = Field(default=100, ge=1, description="loss and learning rate to MLflow every N updates")
+    num_workers: int = Field(default=4, ge=0, description="data-loader worker processes")
+    device: str | None = Field(default=None, description="torch device; None = CUDA when available, else CPU")
+    seed: int = Field(default=1000, description="training seed (LeRobot's default)")
     # --- closed-loop evaluation
-    eval_episodes: int = Field(50, ge=1, description="seeded episodes per task x method")
-    eval_batch: int = Field(25, ge=1, description="episodes run together as copies of one BatchEnv")
-    eval_seed: int = Field(0)
-    object_noise_m: float = Field(0.005, ge=0, description="std of the object's start-position noise (x, y)")
-    video_episodes: int = Field(3, ge=0, description="episodes recorded as MLflow video artefacts")
+    eval_episodes: int = Field(default=50, ge=1, description="seeded episodes per task x method")
+    eval_batch: int = Field(default=25, ge=1, description="episodes run together as copies of one BatchEnv")
+    eval_seed: int = Field(default=0)
+    object_noise_m: float = Field(default=0.005, ge=0, description="std of the object's start-position noise (x, y)")
+    video_episodes: int = Field(default=3, ge=0, description="episodes recorded as MLflow video artefacts")
 
     @model_validator(mode="after")
     def _consistent_horizon(self) -> PolicyConfig:
         # LeRobot executes actions from the current observation on: n_obs - 1 + n_action <= horizon
         if self.n_action_steps > self.horizon - self.n_obs_steps + 1:
             raise ValueError(
-                f"n_action_steps={self.n_action_steps} exceeds horizon - n_obs_steps + 1 = {self.horizon - self.n_obs_steps + 1}"
+                f"n_action_steps={self.n_action_steps} exceeds horizon - n_obs_steps + 1 = "
+                f"{self.horizon - self.n_obs_steps + 1}"
             )
         levels = len(self.down_dims) if self.down_dims is not None else 3
         if self.horizon % 2**levels:

@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -100,7 +101,8 @@ def load_policy(policy_dir: Path, device: str | None = None):
     from lerobot.policies import make_pre_post_processors
     from lerobot.policies.diffusion.modeling_diffusion import DiffusionPolicy
 
-    policy = DiffusionPolicy.from_pretrained(str(policy_dir), **({"device": device} if device else {}))
+    overrides: dict[str, Any] = {"device": device} if device else {}
+    policy = DiffusionPolicy.from_pretrained(str(policy_dir), **overrides)
     policy.eval()
     overrides = {"device_processor": {"device": policy.config.device}}
     pre, post = make_pre_post_processors(
@@ -117,8 +119,17 @@ def _observation(env: BatchEnv, renderer: CameraRenderer) -> dict[str, np.ndarra
     return obs
 
 
-def rollout_policy(policy, preprocessor, postprocessor, scene: Scene, sim: SimConfig, starts: EpisodeStarts, cfg: PolicyConfig,
-                   video_episodes: int = 0, steps: int | None = None) -> EvalResult:  # fmt: skip
+def rollout_policy(
+    policy,
+    preprocessor,
+    postprocessor,
+    scene: Scene,
+    sim: SimConfig,
+    starts: EpisodeStarts,
+    cfg: PolicyConfig,
+    video_episodes: int = 0,
+    steps: int | None = None,
+) -> EvalResult:
     """Run the episodes of ``starts`` closed loop, ``cfg.eval_batch`` at a time as BatchEnv copies.
     ``steps`` defaults to the task's episode length. The first ``video_episodes`` are recorded
     (both cameras side by side). The diffusion noise is seeded with ``cfg.eval_seed``, so a re-run
@@ -130,8 +141,17 @@ def rollout_policy(policy, preprocessor, postprocessor, scene: Scene, sim: SimCo
         return _rollout_policy(policy, preprocessor, postprocessor, scene, sim, starts, cfg, video_episodes, steps)
 
 
-def _rollout_policy(policy, preprocessor, postprocessor, scene: Scene, sim: SimConfig, starts: EpisodeStarts, cfg: PolicyConfig,
-                    video_episodes: int, steps: int | None) -> EvalResult:  # fmt: skip
+def _rollout_policy(
+    policy,
+    preprocessor,
+    postprocessor,
+    scene: Scene,
+    sim: SimConfig,
+    starts: EpisodeStarts,
+    cfg: PolicyConfig,
+    video_episodes: int,
+    steps: int | None,
+) -> EvalResult:
     n_obs, n_act = policy.config.n_obs_steps, policy.config.n_action_steps
     renderer = CameraRenderer(
         scene, tuple(k.removeprefix("observation.images.") for k in policy.config.image_features), cfg.image_size
@@ -277,7 +297,7 @@ def _action_fit(
     executed = slice(now, now + c.n_action_steps)
     errors, holds, valid = [], [], []
     for part in np.array_split(chosen, max(1, -(-len(chosen) // batch_size))):
-        items = [dataset[int(i)] for i in part]
+        items: list[dict] = [dataset[int(i)] for i in part]  # pyright: ignore[reportAssignmentType]  an int index gives one frame
         stacked = {k: torch.stack([it[k] for it in items]) for k in (*keys, "action", "action_is_pad")}
         predicted = _predict_batch(policy, preprocessor, postprocessor, {k: stacked[k] for k in keys})
         recorded = stacked["action"][:, executed].numpy()
@@ -301,8 +321,16 @@ class PolicyEvaluation:
     replay: EvalResult
 
 
-def evaluate(policy_dir: Path, dataset_root: Path, repo_id: str, scene: Scene, sim: SimConfig, rollouts: list[Rollout], cfg: PolicyConfig,
-             video_episodes: int = 0) -> PolicyEvaluation:  # fmt: skip
+def evaluate(
+    policy_dir: Path,
+    dataset_root: Path,
+    repo_id: str,
+    scene: Scene,
+    sim: SimConfig,
+    rollouts: list[Rollout],
+    cfg: PolicyConfig,
+    video_episodes: int = 0,
+) -> PolicyEvaluation:
     """``cfg.eval_episodes`` seeded episodes of the policy in ``policy_dir`` started from
     ``rollouts``' reset rows, its fit to its dataset, and the replay ceiling from the same starts."""
     starts = episode_starts(scene, rollouts, cfg.eval_episodes, cfg.eval_seed, cfg.object_noise_m)

@@ -17,9 +17,11 @@ class ColumnViewReader(DatasetReader):
     """LeRobot's ``DatasetReader`` whose delta-window queries go through cached per-column views."""
 
     def _query_hf_dataset(self, query_indices: dict[str, list[int]]) -> dict:
+        hf_dataset = self.hf_dataset
+        assert hf_dataset is not None, "queried before the dataset was loaded"
         cached = getattr(self, "_column_views", None)
-        if cached is None or cached[0] is not self.hf_dataset:  # (re)loaded: views of the new one
-            cached = self._column_views = (self.hf_dataset, {})
+        if cached is None or cached[0] is not hf_dataset:  # (re)loaded: views of the new one
+            cached = self._column_views = (hf_dataset, {})
         views = cached[1]
         result: dict = {}
         for key, q_idx in query_indices.items():
@@ -29,7 +31,7 @@ class ColumnViewReader(DatasetReader):
                 q_idx if self._absolute_to_relative_idx is None else [self._absolute_to_relative_idx[i] for i in q_idx]
             )
             if key not in views:
-                views[key] = self.hf_dataset.select_columns(key)
+                views[key] = hf_dataset.select_columns(key)
             result[key] = torch.stack(views[key][rows][key])
         return result
 

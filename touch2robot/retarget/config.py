@@ -43,28 +43,35 @@ class RetargetConfig(BaseModel):
     # LEAP wrist edge to middle fingertip 0.230 m (open hand) over the same span of a mid-sized
     # adult hand (~0.20 m); measured on the demonstrator: 1.1 leaves the fingers short of their
     # targets, 1.25 and above the thumb (mean fingertip residual 2.1 mm at 1.15, 3.3 mm at 1.2).
-    scaling: float = Field(1.15, gt=0, description="robot vector = scaling x human vector (the LEAP Hand is larger)")
+    scaling: float = Field(
+        default=1.15, gt=0, description="robot vector = scaling x human vector (the LEAP Hand is larger)"
+    )
     # Hands differ by +-10 % or more; with one fixed factor a large hand asks for fingertips beyond
     # the LEAP's reach (demonstrator: mean residual 7 mm for a 1.07 hand vs 1 mm for a 0.92 one).
     reference_hand_length: float | None = Field(
-        0.2,
+        default=0.2,
         gt=0,
-        description="hand length (m, wrist -> middle MCP -> middle tip along the bones, median over the recording) for which "
-        "`scaling` holds; a recording's factor is scaling x reference / its hand length. None: `scaling` for every hand",
+        description="hand length (m, wrist -> middle MCP -> middle tip along the bones, median over the recording) "
+        "for which `scaling` holds; a recording's factor is scaling x reference / its hand length. "
+        "None: `scaling` for every hand",
     )
-    huber_delta: float = Field(0.02, gt=0, description="Huber (smooth-L1) transition, m of vector error")
-    regulariser: float = Field(4e-3, ge=0, description="weight of |q - q_previous|^2 (Dex Retargeting's norm_delta)")
+    huber_delta: float = Field(default=0.02, gt=0, description="Huber (smooth-L1) transition, m of vector error")
+    regulariser: float = Field(
+        default=4e-3, ge=0, description="weight of |q - q_previous|^2 (Dex Retargeting's norm_delta)"
+    )
     # 10 Hz keeps human finger motion (a few Hz) and halves the tracker jitter in the joints
     lowpass_cutoff_hz: float | None = Field(
-        10.0, gt=0, description="first-order low-pass on the output joints; None: off"
+        default=10.0, gt=0, description="first-order low-pass on the output joints; None: off"
     )
-    ftol_abs: float = Field(1e-6, gt=0, description="SLSQP absolute tolerance on the objective")
-    max_evaluations: int = Field(500, ge=10, description="objective evaluations per frame before SLSQP stops")
+    ftol_abs: float = Field(default=1e-6, gt=0, description="SLSQP absolute tolerance on the objective")
+    max_evaluations: int = Field(default=500, ge=10, description="objective evaluations per frame before SLSQP stops")
     max_residual: float = Field(
-        0.08, gt=0, description="a fingertip farther than this from its target is a failed frame"
+        default=0.08, gt=0, description="a fingertip farther than this from its target is a failed frame"
     )
-    max_gap_s: float = Field(0.25, gt=0, description="a longer gap between hand-motion frames is missing data")
-    time_tolerance_s: float = Field(1e-3, ge=0, description="keypoints and wrist pose of a frame must share its time")
+    max_gap_s: float = Field(default=0.25, gt=0, description="a longer gap between hand-motion frames is missing data")
+    time_tolerance_s: float = Field(
+        default=1e-3, ge=0, description="keypoints and wrist pose of a frame must share its time"
+    )
 
     @model_validator(mode="after")
     def _pairs(self) -> RetargetConfig:
@@ -76,7 +83,7 @@ class RetargetConfig(BaseModel):
         bad = [k for k in (*self.origin_keypoints, *self.task_keypoints) if not 0 <= k < N_KEYPOINTS]
         if bad:
             raise ValueError(f"keypoint indices must lie in 0..{N_KEYPOINTS - 1}, got {bad}")
-        if any(o == t for o, t in zip(self.origin_links, self.task_links)):
+        if any(o == t for o, t in zip(self.origin_links, self.task_links, strict=True)):
             raise ValueError("an objective vector needs two different links")
         return self
 

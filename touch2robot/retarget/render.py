@@ -54,7 +54,7 @@ def comparison_png(
         )
         # equal scales on the three axes around this frame's points, so that lengths compare
         centre = 0.5 * (kp.min(axis=0) + kp.max(axis=0))
-        for lim, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre):
+        for lim, c in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), centre, strict=True):
             lim(c - 0.13, c + 0.13)
         ax.set_box_aspect((1.0, 1.0, 1.0))
         ax.view_init(elev=20, azim=-60)

@@ -15,18 +15,20 @@ class SimConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    n_envs: int = Field(200, ge=1, description="parallel copies (Table VII: 200)")
-    control_hz: float = Field(20.0, gt=0, description="policy / command rate")
-    timestep: float = Field(0.01, gt=0, description="physics step, s")
-    substeps: int = Field(5, ge=1, description="physics steps per control step")
-    threads: int = Field(2, ge=1, description="MuJoCo rollout threads (1 = calling thread only)")
-    seed: int = Field(0, description="seed of resets and noise")
-    contact_threshold_n: float = Field(0.5, gt=0, description="region contact when summed normal force exceeds this")
-    solver_iterations: int = Field(10, ge=1, description="Newton solver iterations per step")
-    ls_iterations: int = Field(8, ge=1, description="line-search iterations per solver iteration")
-    episode_s: float | None = Field(None, gt=0, description="episode length; None = the task spec's")
-    point_cloud_size: int = Field(512, ge=1, description="surface points sampled on the object")
-    device: str = Field("cpu", description="torch device of the rsl-rl adapter's tensors")
+    n_envs: int = Field(default=200, ge=1, description="parallel copies (Table VII: 200)")
+    control_hz: float = Field(default=20.0, gt=0, description="policy / command rate")
+    timestep: float = Field(default=0.01, gt=0, description="physics step, s")
+    substeps: int = Field(default=5, ge=1, description="physics steps per control step")
+    threads: int = Field(default=2, ge=1, description="MuJoCo rollout threads (1 = calling thread only)")
+    seed: int = Field(default=0, description="seed of resets and noise")
+    contact_threshold_n: float = Field(
+        default=0.5, gt=0, description="region contact when summed normal force exceeds this"
+    )
+    solver_iterations: int = Field(default=10, ge=1, description="Newton solver iterations per step")
+    ls_iterations: int = Field(default=8, ge=1, description="line-search iterations per solver iteration")
+    episode_s: float | None = Field(default=None, gt=0, description="episode length; None = the task spec's")
+    point_cloud_size: int = Field(default=512, ge=1, description="surface points sampled on the object")
+    device: str = Field(default="cpu", description="torch device of the rsl-rl adapter's tensors")
 
     @model_validator(mode="after")
     def _consistent_rates(self) -> SimConfig:

@@ -34,7 +34,7 @@ def select_gl_backend() -> str:
     return os.environ["MUJOCO_GL"]
 
 
-GL_BACKEND = select_gl_backend()
+select_gl_backend()
 
 import mujoco  # noqa: E402 - after the backend choice, on purpose
 

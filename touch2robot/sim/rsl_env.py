@@ -23,27 +23,34 @@ class Objective(Protocol):
 
     def reset(self, env: BatchEnv, ids: np.ndarray, rng: np.random.Generator) -> None:
         """Reset copies ``ids`` (env.reset plus the objective's own per-copy state)."""
+        ...
 
     def command(
         self, env: BatchEnv, actions: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
         """Policy actions (N, num_actions) -> the arguments of ``BatchEnv.step``: joint targets
         (N, 16), wrist pos, wrist quat, object force (None = unchanged / none)."""
+        ...
 
     def observe(self, env: BatchEnv) -> dict[str, np.ndarray]:
         """Observation groups, e.g. {"actor": (N, d_a), "critic": (N, d_c)}."""
+        ...
 
     def reward(self, env: BatchEnv, actions: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         """Total reward (N,) and its weighted named terms (each (N,))."""
+        ...
 
     def terminated(self, env: BatchEnv) -> np.ndarray:
         """(N,) bool: episodes that end early (e.g. tracking lost)."""
+        ...
 
     def truncated(self, env: BatchEnv) -> np.ndarray:
         """(N,) bool: episodes cut by time (their reference ends); PPO bootstraps these."""
+        ...
 
     def episode_end(self, env: BatchEnv, ids: np.ndarray) -> dict[str, float]:
         """Called with the copies whose episodes end, before their reset; figures to log."""
+        ...
 
 
 class RslVecEnv(VecEnv):

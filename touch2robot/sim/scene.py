@@ -184,7 +184,7 @@ def scene_xml(spec: TaskSpec, cfg: SimConfig) -> str:
         sub(body, "joint", name="drawer_slide", type="slide", axis=sl.axis, range=sl.range, damping=sl.damping)
     # split the mass over the primitives by volume so that MuJoCo composes a consistent inertia
     volumes = np.array([_geom_volume(g) for g in obj.geoms])
-    for g, m in zip(obj.geoms, obj.mass * volumes / volumes.sum()):
+    for g, m in zip(obj.geoms, obj.mass * volumes / volumes.sum(), strict=True):
         sub(
             body,
             "geom",
@@ -205,7 +205,7 @@ def scene_xml(spec: TaskSpec, cfg: SimConfig) -> str:
         sub(section(root, "contact"), "exclude", body1="cabinet", body2=OBJECT_BODY)
     _add_markers(world, spec)
     target = grasp_target(spec)
-    for name, offset in zip(CAMERAS, ((-0.25, 0.42, 0.30), (-0.06, -0.45, 0.32))):
+    for name, offset in zip(CAMERAS, ((-0.25, 0.42, 0.30), (-0.06, -0.45, 0.32)), strict=True):
         eye = target + np.asarray(offset)
         sub(world, "camera", name=name, pos=eye, xyaxes=look_at(eye, target + np.array([0.0, 0.0, 0.03])), fovy="55")
     wrist_pos, wrist_quat = home_wrist(spec)

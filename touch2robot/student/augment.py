@@ -16,6 +16,8 @@ object, preference and contacts are unchanged. Each copy is seeded by (seed, tas
 
 from __future__ import annotations
 
+import itertools
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,9 +65,9 @@ def split_demonstrations(
     for i, task in enumerate(sorted(demos)):
         ids = sorted(demos[task])
         order = [ids[k] for k in np.random.default_rng([seed, i]).permutation(len(ids))]
-        n_held = min(int(round(held_out_fraction * len(order))), len(order) - 1)
+        n_held = min(round(held_out_fraction * len(order)), len(order) - 1)
         held[task], rest = order[:n_held], order[n_held:]
-        n_val = min(int(round(val_fraction * len(rest))), len(rest) - 1)
+        n_val = min(round(val_fraction * len(rest)), len(rest) - 1)
         val[task], train[task] = rest[:n_val], rest[n_val:]
     if not any(val.values()) and demos:
         task = max(sorted(train), key=lambda t: len(train[t]))
@@ -100,7 +102,7 @@ def paired_sequences(rollouts: pa.Table, refs: dict[str, DemoReference], thresho
     out = []
     ids = rollouts["rollout_id"].to_numpy(zero_copy_only=False)
     bounds = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1], True])
-    for a, b in zip(bounds[:-1], bounds[1:]):
+    for a, b in itertools.pairwise(bounds):
         rows = rollouts.slice(a, b - a)
         rid, ref_id = str(ids[a]), rows["reference_id"][0].as_py()
         if ref_id not in refs or b - a < 2:
@@ -113,7 +115,8 @@ def paired_sequences(rollouts: pa.Table, refs: dict[str, DemoReference], thresho
         t_ref = rows["t_ref"].to_numpy()
         if not np.allclose(ref.t_ref[frame], t_ref, atol=1e-6):
             raise StudentDataError(
-                f"rollout {rid}: t_ref does not follow demonstration {ref_id} (re-run the teachers after a new retargeting)"
+                f"rollout {rid}: t_ref does not follow demonstration {ref_id} (re-run the teachers after a new "
+                "retargeting)"
             )
         f = frame[1:]
         out.append(
@@ -172,7 +175,7 @@ def _rows(seq: PairedSequence, sample_id: str, split: str, augment: int, noise: 
 
 
 def augment(
-    train: list[PairedSequence], count: int, noise_std: float, seed: int, val: list[PairedSequence] = ()
+    train: list[PairedSequence], count: int, noise_std: float, seed: int, val: Sequence[PairedSequence] = ()
 ) -> pa.Table:
     """``student_dataset`` rows of one task: ``count`` training rollouts (the teacher rollouts
     unchanged, then seeded noisy copies) and the validation rollouts unchanged (a task can

@@ -20,7 +20,7 @@ class Ablation(_Frozen):
 
     use_tactile: bool | None = None
     use_geometry: bool | None = None
-    tactile_dropout: float | None = Field(None, ge=0, le=1)
+    tactile_dropout: float | None = Field(default=None, ge=0, le=1)
 
 
 def default_ablations() -> dict[str, Ablation]:
@@ -36,46 +36,50 @@ class StudentConfig(_Frozen):
 
     # --- augmentation (paper: "a total of 400" training rollouts; read as 400 over all tasks,
     # balanced: augmented_rollouts / len(tasks) per task)
-    teacher_method: str = Field("touch2robot", description="whose teacher rollouts are distilled")
-    augmented_rollouts: int = Field(400, ge=1, description="training rollouts in total, balanced over the tasks")
+    teacher_method: str = Field(default="touch2robot", description="whose teacher rollouts are distilled")
+    augmented_rollouts: int = Field(
+        default=400, ge=1, description="training rollouts in total, balanced over the tasks"
+    )
     joint_noise_std: float = Field(
-        0.1, ge=0, description="rad: N(0, std^2) per frame and joint, added to input and target alike"
+        default=0.1, ge=0, description="rad: N(0, std^2) per frame and joint, added to input and target alike"
     )
     # --- demonstrations: held out for reconstruction, and validation within the training ones
     held_out_fraction: float = Field(
-        0.25, ge=0, lt=1, description="per task, demonstrations reconstructed and never trained on"
+        default=0.25, ge=0, lt=1, description="per task, demonstrations reconstructed and never trained on"
     )
     val_fraction: float = Field(
-        0.2, ge=0, lt=1, description="per task, training demonstrations used for validation only"
+        default=0.2, ge=0, lt=1, description="per task, training demonstrations used for validation only"
     )
     # --- model (Table VIII: history, geometry, layers, heads)
-    history: int = Field(16, ge=1, description="H: causal history in control steps")
-    geometry_dim: int = Field(32, ge=1, description="PointNet feature of the object's surface points")
-    pointnet_hidden: tuple[int, ...] = Field((64, 128), min_length=1, description="shared per-point MLP widths")
-    layers: int = Field(4, ge=1)
-    heads: int = Field(8, ge=1)
-    d_model: int = Field(128, ge=1, description="Transformer width (not given by the paper)")
-    ff_dim: int = Field(256, ge=1, description="feed-forward width of each layer")
-    dropout: float = Field(0.1, ge=0, lt=1, description="attention / feed-forward dropout")
+    history: int = Field(default=16, ge=1, description="H: causal history in control steps")
+    geometry_dim: int = Field(default=32, ge=1, description="PointNet feature of the object's surface points")
+    pointnet_hidden: tuple[int, ...] = Field(default=(64, 128), min_length=1, description="shared per-point MLP widths")
+    layers: int = Field(default=4, ge=1)
+    heads: int = Field(default=8, ge=1)
+    d_model: int = Field(default=128, ge=1, description="Transformer width (not given by the paper)")
+    ff_dim: int = Field(default=256, ge=1, description="feed-forward width of each layer")
+    dropout: float = Field(default=0.1, ge=0, lt=1, description="attention / feed-forward dropout")
     # --- inputs and ablation switches
-    use_tactile: bool = Field(True, description="feed the human's tactile preference")
-    use_geometry: bool = Field(True, description="feed the PointNet geometry feature")
+    use_tactile: bool = Field(default=True, description="feed the human's tactile preference")
+    use_geometry: bool = Field(default=True, description="feed the PointNet geometry feature")
     tactile_dropout: float = Field(
-        0.25, ge=0, le=1, description="probability that a training window's whole preference is hidden"
+        default=0.25, ge=0, le=1, description="probability that a training window's whole preference is hidden"
     )
     ablations: dict[str, Ablation] = Field(
         default_factory=default_ablations, description="variants trained beside the full model"
     )
     # --- distillation (Table VIII: AdamW, batch 128, lr 3e-4)
-    batch_size: int = Field(128, ge=1)
-    lr: float = Field(3e-4, gt=0)
-    weight_decay: float = Field(0.01, ge=0, description="AdamW (torch default)")
-    steps: int = Field(20_000, ge=1, description="optimizer updates")
-    joint_weight: float = Field(1.0, ge=0, description="loss weight of the joint-target MSE (rad^2)")
-    wrist_weight: float = Field(1.0, ge=0, description="loss weight of the wrist-residual MSE (teacher action units)")
-    contact_weight: float = Field(0.1, ge=0, description="loss weight of the contact BCE")
-    eval_interval: int = Field(500, ge=1, description="updates between validation passes (logged to MLflow)")
-    checkpoint_interval: int = Field(1000, ge=1, description="updates between checkpoints (the resume point)")
+    batch_size: int = Field(default=128, ge=1)
+    lr: float = Field(default=3e-4, gt=0)
+    weight_decay: float = Field(default=0.01, ge=0, description="AdamW (torch default)")
+    steps: int = Field(default=20_000, ge=1, description="optimizer updates")
+    joint_weight: float = Field(default=1.0, ge=0, description="loss weight of the joint-target MSE (rad^2)")
+    wrist_weight: float = Field(
+        default=1.0, ge=0, description="loss weight of the wrist-residual MSE (teacher action units)"
+    )
+    contact_weight: float = Field(default=0.1, ge=0, description="loss weight of the contact BCE")
+    eval_interval: int = Field(default=500, ge=1, description="updates between validation passes (logged to MLflow)")
+    checkpoint_interval: int = Field(default=1000, ge=1, description="updates between checkpoints (the resume point)")
     seed: int = 0
 
     @model_validator(mode="after")

@@ -112,7 +112,7 @@ def prediction_rows(
                     "t_ref": np.repeat(tr, k),
                     "region": pa.array(np.tile(np.asarray(ROBOT_REGIONS), n)),
                     "logit": logits.reshape(-1),
-                    "contact": pc.greater(pa.array(logits.reshape(-1)), 0.0),
+                    "contact": pc.greater(pa.array(logits.reshape(-1)), 0.0),  # pyright: ignore[reportAttributeAccessIssue]
                 }
             )
         )
@@ -129,8 +129,16 @@ class Reconstruction:
     figures: dict[str, float]  # over the evaluated demonstrations
 
 
-def reconstruct_task(net: StudentNet, task: str, refs: list[DemoReference], config: TeacherConfig, method: str, variant: str,
-                     teacher_rollouts: pa.Table | None = None, evaluated: Collection[str] | None = None) -> Reconstruction:  # fmt: skip
+def reconstruct_task(
+    net: StudentNet,
+    task: str,
+    refs: list[DemoReference],
+    config: TeacherConfig,
+    method: str,
+    variant: str,
+    teacher_rollouts: pa.Table | None = None,
+    evaluated: Collection[str] | None = None,
+) -> Reconstruction:
     """Batched inference over each demonstration, execution in MuJoCo, and the figures over the
     ``evaluated`` demonstrations (recording ids; default all of ``refs``):
 
@@ -153,8 +161,8 @@ def reconstruct_task(net: StudentNet, task: str, refs: list[DemoReference], conf
     finally:
         env.close()
     keep = pa.array(sorted(evaluated))
-    scored = rollouts.filter(pc.is_in(rollouts["reference_id"], keep))
-    contacts = contacts.filter(pc.is_in(contacts["reference_id"], keep))
+    scored = rollouts.filter(pc.is_in(rollouts["reference_id"], keep))  # pyright: ignore[reportAttributeAccessIssue]
+    contacts = contacts.filter(pc.is_in(contacts["reference_id"], keep))  # pyright: ignore[reportAttributeAccessIssue]
     figures = {k: float(v) for k, v in summary(scored, stacked, config.sim.contact_threshold_n).items()}
     chosen = [i for i, r in enumerate(refs) if r.recording_id in evaluated]
     predicted = contact_scores(
@@ -177,5 +185,5 @@ def reconstruct_task(net: StudentNet, task: str, refs: list[DemoReference], conf
     predictions = prediction_rows(
         outputs, stacked.ids, [r.t_ref for r in refs], task, method, variant, config.sim.control_dt
     )
-    predictions = predictions.filter(pc.is_in(predictions["reference_id"], keep))
+    predictions = predictions.filter(pc.is_in(predictions["reference_id"], keep))  # pyright: ignore[reportAttributeAccessIssue]
     return Reconstruction(rollouts, contacts, predictions, figures)

@@ -18,12 +18,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from touch2robot.geometry import quat_conj, quat_from_rotvec, quat_mul, rotvec
+from touch2robot.geometry import quat_conj, quat_mul, rotvec
 from touch2robot.teachers.reference import DemoReference
 
 JOINTS = slice(0, 16)
 TACTILE = slice(30, 39)  # preference and its availability flag
-PREFERENCE = slice(30, 38)
 INPUT_DIM = 39
 NUM_JOINTS = 16
 WRIST_DIM = 6  # position residual (3) and axis-angle rotation residual in the wrist frame (3)
@@ -72,9 +71,3 @@ def wrist_residual(reference: np.ndarray, command: np.ndarray) -> np.ndarray:
     parametrised like the teachers' wrist action (world shift, rotation in the wrist frame)."""
     rot = rotvec(quat_mul(quat_conj(reference[:, 3:]), command[:, 3:]))
     return np.concatenate([command[:, :3] - reference[:, :3], rot], axis=1)
-
-
-def apply_wrist_residual(reference: np.ndarray, residual: np.ndarray) -> np.ndarray:
-    """(T, 7) wrist poses: the inverse of ``wrist_residual``."""
-    quat = quat_mul(reference[:, 3:], quat_from_rotvec(residual[:, 3:]))
-    return np.concatenate([reference[:, :3] + residual[:, :3], quat], axis=1)

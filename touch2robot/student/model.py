@@ -11,6 +11,7 @@ model is self-contained. ``ServingStudent`` is the single-tensor form logged to 
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from torch import nn
 
@@ -36,6 +37,11 @@ class PointNetEncoder(nn.Module):
 
 
 class StudentNet(nn.Module):
+    # registered buffers: saved with the weights, not trained
+    input_mean: torch.Tensor
+    input_std: torch.Tensor
+    causal_mask: torch.Tensor
+
     def __init__(self, cfg: StudentConfig) -> None:
         super().__init__()
         self.history = cfg.history
@@ -88,7 +94,7 @@ class StudentNet(nn.Module):
         return torch.cat([joints, out[..., NUM_JOINTS:]], dim=-1)
 
 
-def split_outputs(out: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def split_outputs[T: (torch.Tensor, np.ndarray)](out: T) -> tuple[T, T, T]:
     """(..., OUTPUT_DIM) -> joints (..., 16), wrist residual (..., 6), contact logits (..., 8)."""
     return out[..., :NUM_JOINTS], out[..., NUM_JOINTS : NUM_JOINTS + WRIST_DIM], out[..., NUM_JOINTS + WRIST_DIM :]
 

@@ -15,9 +15,13 @@ class SynthConfig(BaseModel):
 
     seed: int = 0
     tasks: tuple[str, ...] = TASKS
-    subjects: int = Field(3, ge=1)
-    demos_per_subject: int = Field(10, ge=1)
+    subjects: int = Field(default=3, ge=1)
+    demos_per_subject: int = Field(default=10, ge=1)
     replay_methods: tuple[str, ...] = ("touch2robot", "dex-retargeting")
-    replays_per_task: int = Field(2, ge=0, description="glove sessions per task replayed on the robot, per method")
-    pace: float = Field(1.0, gt=0, description="time stretch of every scripted motion (longer recordings when > 1)")
-    calibration_s: float = Field(5.0, gt=0)
+    replays_per_task: int = Field(
+        default=2, ge=0, description="glove sessions per task replayed on the robot, per method"
+    )
+    pace: float = Field(
+        default=1.0, gt=0, description="time stretch of every scripted motion (longer recordings when > 1)"
+    )
+    calibration_s: float = Field(default=5.0, gt=0)

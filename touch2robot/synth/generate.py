@@ -13,7 +13,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from schemas.glove import GLOVE_JOINT_NAMES, TAXEL_REGION
+from schemas.glove import GLOVE_JOINT_NAMES, region_taxels
 from schemas.messages import LEAP_JOINT_NAMES
 from schemas.tables import HUMAN_REGIONS, ROBOT_REGIONS
 from touch2robot import geometry, scenes
@@ -26,7 +26,7 @@ from touch2robot.synth.sensors import TwinTac, fsr_readings, glove_readings
 
 EPOCH_NS = 1_767_225_600 * 10**9  # 2026-01-01T00:00:00Z: recordings start from here
 CONTACT_N = 0.5
-_REGION_IDX = {r: np.flatnonzero(np.asarray(TAXEL_REGION) == r) for r in HUMAN_REGIONS}
+_REGION_IDX = {r: region_taxels(r) for r in HUMAN_REGIONS}
 
 
 @dataclass(frozen=True)
@@ -145,7 +145,7 @@ def _write_glove(config: SynthConfig, job: RecordingJob, path: Path, gt_path: Pa
     obj_pos = obj.object_pos + rng.normal(0.0, 0.0005, obj.object_pos.shape)
 
     def ns(t: float) -> int:
-        return t0_ns + int(round(t * 1e9))
+        return t0_ns + round(t * 1e9)
 
     metadata = {
         "task": job.task,
@@ -257,7 +257,7 @@ def _write_replay(config: SynthConfig, job: RecordingJob, path: Path, gt_path: P
             + [(t, 2, i) for i, t in enumerate(t_js)] + [(t, 3, i) for i, t in enumerate(t_tg)]
         )  # fmt: skip
         for t, stream, i in events:
-            s = t0_ns + int(round(t * 1e9))
+            s = t0_ns + round(t * 1e9)
             if stream == 0:
                 w.write("/twintac/raw", s, cdr.encode_tactile(s, "twintac", twintac_raw[i]))
             elif stream == 1:
@@ -285,5 +285,5 @@ def _write_calibration(config: SynthConfig, job: RecordingJob, path: Path, gt_pa
     t0_ns = EPOCH_NS + 2 * 10**15 + _start_offset_s(job) * 10**9
     with RecordingWriter(path, "robot_calibration", {"rig": "simulated-demonstrator", "sensor": "twintac"}) as w:
         for i, ti in enumerate(t):
-            s = t0_ns + int(round(ti * 1e9))
+            s = t0_ns + round(ti * 1e9)
             w.write("/twintac/raw", s, cdr.encode_tactile(s, "twintac", raw[i]))

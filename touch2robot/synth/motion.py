@@ -95,11 +95,15 @@ class _Builder:
 
     def phase(self, duration: float, wrist_pos=None, wrist_quat=None, joints=None, obj_pos=None, obj_quat=None) -> None:
         t0, wp, wq, jq, op, oq = self.state
-        n = max(2, int(round(duration * GRID_HZ)))
+        n = max(2, round(duration * GRID_HZ))
         s = minjerk(np.arange(1, n + 1) / n)
-        tgt = [wp if wrist_pos is None else np.asarray(wrist_pos, float), wq if wrist_quat is None else np.asarray(wrist_quat, float),
-               jq if joints is None else np.asarray(joints, float), op if obj_pos is None else np.asarray(obj_pos, float),
-               oq if obj_quat is None else np.asarray(obj_quat, float)]  # fmt: skip
+        tgt = [
+            wp if wrist_pos is None else np.asarray(wrist_pos, float),
+            wq if wrist_quat is None else np.asarray(wrist_quat, float),
+            jq if joints is None else np.asarray(joints, float),
+            op if obj_pos is None else np.asarray(obj_pos, float),
+            oq if obj_quat is None else np.asarray(obj_quat, float),
+        ]
         wps = wp + s[:, None] * (tgt[0] - wp)
         wqs = _slerp(wq, tgt[1], s)
         jqs = jq + s[:, None] * (tgt[2] - jq)
@@ -113,7 +117,7 @@ class _Builder:
         t0, wp, wq, jq, op, oq = self.state
         rel_pos = geometry.inverse_transform_points(wp[None], op, oq)[0]
         rel_rot = geometry.quat_to_mat(oq).T @ geometry.quat_to_mat(wq)
-        n = max(2, int(round(duration * GRID_HZ)))
+        n = max(2, round(duration * GRID_HZ))
         s = minjerk(np.arange(1, n + 1) / n)
         ops = op + s[:, None] * (np.asarray(obj_pos, float) - op)
         oqs = _slerp(oq, obj_quat, s)
@@ -126,7 +130,7 @@ class _Builder:
         self.phase(duration)
 
     def build(self) -> Trajectory:
-        cols = list(zip(*self.rows))
+        cols = list(zip(*self.rows, strict=True))
         return Trajectory(*(np.asarray(c, float) for c in cols))
 
 
@@ -183,9 +187,10 @@ def close_fingers(
     for f in fingers:
         cols = slice(4 * f, 4 * f + 4)
 
+        # called in this iteration only, so reading the loop's cols and f is safe
         def max_depth(s: np.ndarray) -> np.ndarray:
             qs = np.repeat(q[None], len(s), 0)
-            qs[:, cols] = q_open[cols] + s[:, None] * (q_close[cols] - q_open[cols])
+            qs[:, cols] = q_open[cols] + s[:, None] * (q_close[cols] - q_open[cols])  # noqa: B023
             pts = hand.forward(qs).taxel_points
             world = geometry.transform_points(
                 pts, np.broadcast_to(wrist_pos, (len(s), 3)), np.broadcast_to(wrist_quat, (len(s), 4))
@@ -193,7 +198,7 @@ def close_fingers(
             pen = scene.penetration(
                 world, np.broadcast_to(obj_pos, (len(s), 3)), np.broadcast_to(obj_quat, (len(s), 4))
             )
-            return pen[:, _finger_taxels(f)].max(axis=1)
+            return pen[:, _finger_taxels(f)].max(axis=1)  # noqa: B023
 
         d = max_depth(steps)
         hit = np.flatnonzero(d >= depth[f])

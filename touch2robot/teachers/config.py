@@ -15,7 +15,6 @@ from touch2robot.scenes import TASKS
 from touch2robot.sim.config import SimConfig
 
 TeacherMethod = Literal["touch2robot", "contrack", "dexmachina"]
-TEACHER_METHODS: tuple[str, ...] = ("touch2robot", "contrack", "dexmachina")
 
 
 class _Frozen(BaseModel):
@@ -25,23 +24,25 @@ class _Frozen(BaseModel):
 class PPOConfig(_Frozen):
     """rsl-rl-lib's OnPolicyRunner / PPO settings (Table VII)."""
 
-    num_steps_per_env: int = Field(512, ge=1, description="rollout length per env per iteration")
-    max_iterations: int = Field(1500, ge=1, description="PPO iterations per teacher")
-    num_mini_batches: int = Field(4, ge=1)
-    num_learning_epochs: int = Field(5, ge=1)
+    num_steps_per_env: int = Field(default=512, ge=1, description="rollout length per env per iteration")
+    max_iterations: int = Field(default=1500, ge=1, description="PPO iterations per teacher")
+    num_mini_batches: int = Field(default=4, ge=1)
+    num_learning_epochs: int = Field(default=5, ge=1)
     hidden_dims: tuple[int, ...] = (1024, 1024, 512)
     activation: str = "elu"
-    learning_rate: float = Field(3e-4, gt=0)
-    clip_param: float = Field(0.2, gt=0)
-    max_grad_norm: float = Field(1.0, gt=0)
-    gamma: float = Field(0.96, gt=0, le=1)
-    lam: float = Field(0.95, gt=0, le=1)
-    init_noise_std: float = Field(0.8, gt=0)
-    desired_kl: float = Field(0.016, gt=0)
-    entropy_coef: float = Field(0.0, ge=0)
-    value_loss_coef: float = Field(1.0, ge=0)
+    learning_rate: float = Field(default=3e-4, gt=0)
+    clip_param: float = Field(default=0.2, gt=0)
+    max_grad_norm: float = Field(default=1.0, gt=0)
+    gamma: float = Field(default=0.96, gt=0, le=1)
+    lam: float = Field(default=0.95, gt=0, le=1)
+    init_noise_std: float = Field(default=0.8, gt=0)
+    desired_kl: float = Field(default=0.016, gt=0)
+    entropy_coef: float = Field(default=0.0, ge=0)
+    value_loss_coef: float = Field(default=1.0, ge=0)
     schedule: Literal["adaptive", "fixed"] = "adaptive"
-    save_interval: int = Field(50, ge=1, description="iterations between checkpoints (each one an MLflow artefact)")
+    save_interval: int = Field(
+        default=50, ge=1, description="iterations between checkpoints (each one an MLflow artefact)"
+    )
 
 
 class RewardWeights(_Frozen):
@@ -63,10 +64,10 @@ class ContrackConfig(_Frozen):
     per-clip multiplier (reward = (style + lambda task) / (1 + lambda))."""
 
     enabled: bool = False
-    alpha: float = Field(0.9, gt=0, le=1)
-    dual_lr: float = Field(0.5, gt=0, description="step of lambda per unit of relative constraint violation")
-    lambda_init: float = Field(1.0, ge=0)
-    lambda_max: float = Field(20.0, gt=0)
+    alpha: float = Field(default=0.9, gt=0, le=1)
+    dual_lr: float = Field(default=0.5, gt=0, description="step of lambda per unit of relative constraint violation")
+    lambda_init: float = Field(default=1.0, ge=0)
+    lambda_max: float = Field(default=20.0, gt=0)
 
 
 class AssistanceConfig(_Frozen):
@@ -76,15 +77,17 @@ class AssistanceConfig(_Frozen):
     (of its maximum), until it falls below ``min_gain`` and the object is on its own."""
 
     enabled: bool = False
-    frequency_hz: float = Field(2.0, gt=0, description="natural frequency of the PD pull at gain 1 (mass-scaled)")
-    damping_ratio: float = Field(1.0, gt=0)
+    frequency_hz: float = Field(
+        default=2.0, gt=0, description="natural frequency of the PD pull at gain 1 (mass-scaled)"
+    )
+    damping_ratio: float = Field(default=1.0, gt=0)
     gravity_compensation: bool = True
     threshold: float = Field(
-        0.6, gt=0, le=1, description="task reward per step (fraction of its max) that triggers a decay"
+        default=0.6, gt=0, le=1, description="task reward per step (fraction of its max) that triggers a decay"
     )
-    decay: float = Field(0.8, gt=0, lt=1)
-    min_gain: float = Field(0.05, gt=0)
-    window_episodes: int = Field(50, ge=1, description="finished episodes averaged before each decision")
+    decay: float = Field(default=0.8, gt=0, lt=1)
+    min_gain: float = Field(default=0.05, gt=0)
+    window_episodes: int = Field(default=50, ge=1, description="finished episodes averaged before each decision")
 
 
 class MethodConfig(_Frozen):
@@ -117,23 +120,23 @@ class TeacherConfig(_Frozen):
     # every deterministic rollout lost the object at 7.7 of 9.4 s, success 0 after 240
     # iterations); these keep it (Rotate 0.88, Wipe 1.0 after 80 iterations).
     action_scale: float = Field(
-        0.15, gt=0, description="rad: joint target = kinematic reference + scale x clip(action, -1, 1)"
+        default=0.15, gt=0, description="rad: joint target = kinematic reference + scale x clip(action, -1, 1)"
     )
     wrist_pos_scale_m: float = Field(
-        0.02, ge=0, description="m: wrist position residual per unit action (0 = the kinematic wrist)"
+        default=0.02, ge=0, description="m: wrist position residual per unit action (0 = the kinematic wrist)"
     )
-    wrist_rot_scale_rad: float = Field(0.15, ge=0, description="rad: wrist rotation residual per unit action")
-    sigma_pos: float = Field(0.02, gt=0, description="m, object position kernel")
-    sigma_rot: float = Field(0.3, gt=0, description="rad, object orientation kernel")
-    sigma_joint: float = Field(0.5, gt=0, description="rad^2, hand imitation kernel")
-    sigma_contact: float = Field(0.02, gt=0, description="m, contact point kernel")
-    lost_pos_m: float = Field(0.06, gt=0, description="object (or drawer opening) error that ends an episode")
-    lost_rot_rad: float = Field(1.2, gt=0, description="object orientation error that ends an episode")
-    grace_steps: int = Field(5, ge=0, description="steps after reset before tracking can be lost")
+    wrist_rot_scale_rad: float = Field(default=0.15, ge=0, description="rad: wrist rotation residual per unit action")
+    sigma_pos: float = Field(default=0.02, gt=0, description="m, object position kernel")
+    sigma_rot: float = Field(default=0.3, gt=0, description="rad, object orientation kernel")
+    sigma_joint: float = Field(default=0.5, gt=0, description="rad^2, hand imitation kernel")
+    sigma_contact: float = Field(default=0.02, gt=0, description="m, contact point kernel")
+    lost_pos_m: float = Field(default=0.06, gt=0, description="object (or drawer opening) error that ends an episode")
+    lost_rot_rad: float = Field(default=1.2, gt=0, description="object orientation error that ends an episode")
+    grace_steps: int = Field(default=5, ge=0, description="steps after reset before tracking can be lost")
     contact_margin_m: float = Field(
-        0.005, ge=0, description="ConTrack: hand segment within this of the surface = contact"
+        default=0.005, ge=0, description="ConTrack: hand segment within this of the surface = contact"
     )
-    rollouts_per_task: int = Field(30, ge=1, description="deterministic teacher rollouts per task and method")
+    rollouts_per_task: int = Field(default=30, ge=1, description="deterministic teacher rollouts per task and method")
     seed: int = 0
 
     def method(self, name: str) -> MethodConfig:

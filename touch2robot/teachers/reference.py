@@ -20,7 +20,7 @@ from schemas.glove import KEYPOINT_NAMES
 from schemas.tables import ROBOT_REGIONS
 from touch2robot import lake as lake_io
 from touch2robot import scenes
-from touch2robot.geometry import body_sdf, inverse_transform_points, quat_to_mat
+from touch2robot.geometry import body_sdf, inverse_transform_points
 
 
 class ReferenceError(ValueError):
@@ -229,11 +229,3 @@ def load_reference(
         geo_contact=geo_contact,
         geo_point=geo_point,
     )
-
-
-def world_points(ref: DemoReference, frames: np.ndarray, object_pos: np.ndarray, object_quat: np.ndarray) -> np.ndarray:
-    """The geometric contact points of ``frames`` (one per copy) carried by the *simulated* object's
-    current pose: (N, 8, 3) world; NaN where the reference has no contact."""
-    local = ref.geo_point[frames]  # (N, 8, 3)
-    rot = quat_to_mat(object_quat)  # (N, 3, 3)
-    return np.einsum("nij,nrj->nri", rot, local) + object_pos[:, None, :]

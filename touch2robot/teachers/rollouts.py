@@ -112,7 +112,7 @@ def _tables(
     for i in range(n):
         rows = [s for s in steps if s["active"][i]]
         d = int(objective.demo[i])
-        get = lambda key: np.stack([s[key][i] for s in rows])  # noqa: E731
+        get = lambda key: np.stack([s[key][i] for s in rows])  # noqa: E731, B023 - called in this iteration only
         k = len(rows)
         rid = rollout_id(origin, method, task, i)
         step = get("step")
@@ -156,7 +156,7 @@ def _tables(
                 regions=ROBOT_REGIONS,
                 contact=get("region_contact"),
                 value=get("region_force"),
-            )  # fmt: skip
+            )
         )
     rollouts = pa.concat_tables(rollout_tables).cast(SCHEMAS["rollouts"])
     return rollouts, pa.concat_tables(contact_tables)
@@ -170,7 +170,10 @@ def summary(rollouts: pa.Table, refs: References, threshold_n: float) -> dict[st
     last = np.r_[ids[1:] != ids[:-1], True]
     demo = np.array([refs.ids.index(r) for r in rollouts["reference_id"].to_pylist()])
     frame = np.array(
-        [np.searchsorted(refs.t_ref[d, : refs.length[d]], t) for d, t in zip(demo, rollouts["t_ref"].to_numpy())]
+        [
+            np.searchsorted(refs.t_ref[d, : refs.length[d]], t)
+            for d, t in zip(demo, rollouts["t_ref"].to_numpy(), strict=True)
+        ]
     )
     preference = refs.preference[demo, np.minimum(frame, refs.length[demo] - 1)]
     force = rollouts["region_force"].combine_chunks().flatten().to_numpy().reshape(-1, 8)
