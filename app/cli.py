@@ -203,8 +203,15 @@ def student(
         "variant", "task", "joint error (rad)", "kinematic input (rad)", "contact F1", "predicted F1", "success"
     )
     for r in result.get("heldout", []):
-        table.add_row(r["variant"], r["task"], f"{r['joint_error_student']:.4f}", f"{r['joint_error_kinematic']:.4f}",
-                      f"{r['contact_f1']:.3f}", f"{r['predicted_contact_f1']:.3f}", f"{r['success_rate']:.2f}")  # fmt: skip
+        table.add_row(
+            r["variant"],
+            r["task"],
+            f"{r['joint_error_student']:.4f}",
+            f"{r['joint_error_kinematic']:.4f}",
+            f"{r['contact_f1']:.3f}",
+            f"{r['predicted_contact_f1']:.3f}",
+            f"{r['success_rate']:.2f}",
+        )
     console.print(table)
 
 
@@ -260,9 +267,17 @@ def policy(
         "holding still",
     )
     for r in rows:
-        table.add_row(r["task"], r["method"], r["origin"], f"{r['successes']}/{r['episodes']}", f"[{r['ci_low']:.2f}, {r['ci_high']:.2f}]", f"{r['mean_progress']:.2f}",
-                      f"{r['replay_successes']}/{r['episodes']}",
-                      f"{r['fit_joint_err_rad']:.3f} / {r['fit_wrist_err_mm']:.1f}", f"{r['hold_joint_err_rad']:.3f} / {r['hold_wrist_err_mm']:.1f}")  # fmt: skip
+        table.add_row(
+            r["task"],
+            r["method"],
+            r["origin"],
+            f"{r['successes']}/{r['episodes']}",
+            f"[{r['ci_low']:.2f}, {r['ci_high']:.2f}]",
+            f"{r['mean_progress']:.2f}",
+            f"{r['replay_successes']}/{r['episodes']}",
+            f"{r['fit_joint_err_rad']:.3f} / {r['fit_wrist_err_mm']:.1f}",
+            f"{r['hold_joint_err_rad']:.3f} / {r['hold_wrist_err_mm']:.1f}",
+        )
     console.print(table)
 
 

@@ -20,6 +20,7 @@ only spawns processes and speaks HTTP: it does not import Prefect."""
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import os
 import signal
@@ -58,8 +59,13 @@ def _die_with(parent_pid: int) -> Callable[[], None] | None:
 
 def spawn_owned(cmd: Sequence[str], env: Mapping[str, str] | None = None, **popen: object) -> subprocess.Popen:
     """Start ``cmd`` in its own process group, killed by the kernel if this process dies."""
-    return subprocess.Popen(list(cmd), env=dict(env) if env is not None else None, start_new_session=True,
-                            preexec_fn=_die_with(os.getpid()), **popen)  # fmt: skip
+    return subprocess.Popen(
+        list(cmd),
+        env=dict(env) if env is not None else None,
+        start_new_session=True,
+        preexec_fn=_die_with(os.getpid()),
+        **popen,
+    )
 
 
 def stop_group(proc: subprocess.Popen, grace_s: float = 5.0) -> None:
@@ -75,10 +81,8 @@ def stop_group(proc: subprocess.Popen, grace_s: float = 5.0) -> None:
             break
         except subprocess.TimeoutExpired:
             continue
-    try:
+    with contextlib.suppress(ProcessLookupError):
         os.killpg(proc.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
     proc.wait()
 
 
@@ -112,9 +116,20 @@ class PrefectApi:
         """Spawn the server; returns at once (``wait_ready`` waits for it)."""
         self.port = free_port()
         cmd = [
-            sys.executable, "-m", "uvicorn", "--factory", "prefect.server.api.server:create_app",
-            "--host", "127.0.0.1", "--port", str(self.port), "--log-level", "error", "--lifespan", "on",
-        ]  # fmt: skip
+            sys.executable,
+            "-m",
+            "uvicorn",
+            "--factory",
+            "prefect.server.api.server:create_app",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(self.port),
+            "--log-level",
+            "error",
+            "--lifespan",
+            "on",
+        ]
         # Prefect's own settings for its temporary server: no UI, only the services a
         # short-lived server needs, one app per process
         env = {**self.env, "PREFECT_UI_ENABLED": "0", "PREFECT__SERVER_EPHEMERAL": "1", "PREFECT__SERVER_FINAL": "1"}

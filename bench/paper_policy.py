@@ -139,12 +139,19 @@ def main() -> None:
     closed, fit, replay = outcome.closed_loop, outcome.fit, outcome.replay
     low, high = closed.wilson
     summary["eval"] = {
-        "episodes": len(closed.success), "successes": int(closed.success.sum()), "ci_low": low, "ci_high": high,
-        "mean_progress": float(closed.progress.mean()), "replay_successes": int(replay.success.sum()),
-        "fit_wrist_err_mm": fit.wrist_err_mm, "hold_wrist_err_mm": fit.hold_wrist_err_mm,
-        "fit_joint_err_rad": fit.joint_err_rad, "hold_joint_err_rad": fit.hold_joint_err_rad,
-        "replans_per_episode": closed.replans, "seconds": round(time.perf_counter() - start, 1),
-    }  # fmt: skip
+        "episodes": len(closed.success),
+        "successes": int(closed.success.sum()),
+        "ci_low": low,
+        "ci_high": high,
+        "mean_progress": float(closed.progress.mean()),
+        "replay_successes": int(replay.success.sum()),
+        "fit_wrist_err_mm": fit.wrist_err_mm,
+        "hold_wrist_err_mm": fit.hold_wrist_err_mm,
+        "fit_joint_err_rad": fit.joint_err_rad,
+        "hold_joint_err_rad": fit.hold_joint_err_rad,
+        "replans_per_episode": closed.replans,
+        "seconds": round(time.perf_counter() - start, 1),
+    }
     summary["loss_curve"] = curve
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2))

@@ -99,8 +99,18 @@ def ceiling(env: BatchEnv, inputs: list[tuple[np.ndarray, np.ndarray]], threads:
     sens = np.empty((env.n, env.cfg.substeps, env.model.nsensordata))
     start = time.perf_counter()
     for state, control in inputs:
-        pool.rollout(models, datas, state, control, control_spec=CONTROL_SPEC, skip_checks=True, nstep=env.cfg.substeps,
-                     initial_warmstart=warm, state=out, sensordata=sens)  # fmt: skip
+        pool.rollout(
+            models,
+            datas,
+            state,
+            control,
+            control_spec=CONTROL_SPEC,
+            skip_checks=True,
+            nstep=env.cfg.substeps,
+            initial_warmstart=warm,
+            state=out,
+            sensordata=sens,
+        )
     rate = env.n * len(inputs) / (time.perf_counter() - start)
     pool.close()
     return rate

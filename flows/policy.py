@@ -1,6 +1,7 @@
 """Flow `policy`: per task x method with rollouts in the lake (the most preferred origin of the
 profile's ``policy.origins``, default student > teacher > kinematic), the LeRobot dataset of its
-robot demonstrations, LeRobot's Diffusion Policy trained on it and its closed-loop success (``policy_eval`` table, MLflow runs of stage "policy")."""
+robot demonstrations, LeRobot's Diffusion Policy trained on it and its closed-loop success
+(``policy_eval`` table, MLflow runs of stage "policy")."""
 
 from __future__ import annotations
 
@@ -41,9 +42,11 @@ def policy(
     refresh_catalog(root)
     report_policy(profile, rows)
     for r in rows:
-        print(f"policy {r['task']:>7} x {r['method']:<16} ({r['origin']}): success {r['successes']}/{r['episodes']} "
-              f"= {r['success_rate']:.2f} [{r['ci_low']:.2f}, {r['ci_high']:.2f}], progress {r['mean_progress']:.2f}, "
-              f"demonstrations replayed {r['replay_successes']}/{r['episodes']}, "
-              f"open-loop error {r['fit_joint_err_rad']:.3f} rad / {r['fit_wrist_err_mm']:.1f} mm (holding still: "
-              f"{r['hold_joint_err_rad']:.3f} / {r['hold_wrist_err_mm']:.1f})")  # fmt: skip
+        print(
+            f"policy {r['task']:>7} x {r['method']:<16} ({r['origin']}): success {r['successes']}/{r['episodes']} "
+            f"= {r['success_rate']:.2f} [{r['ci_low']:.2f}, {r['ci_high']:.2f}], progress {r['mean_progress']:.2f}, "
+            f"demonstrations replayed {r['replay_successes']}/{r['episodes']}, "
+            f"open-loop error {r['fit_joint_err_rad']:.3f} rad / {r['fit_wrist_err_mm']:.1f} mm (holding still: "
+            f"{r['hold_joint_err_rad']:.3f} / {r['hold_wrist_err_mm']:.1f})"
+        )
     return rows

@@ -31,7 +31,9 @@ def retarget(profile: str = "smoke", data: str | None = None) -> dict:
     results = [f.result() for f in futures]
     refresh_catalog(str(layout.root))
     summary = report_retarget(profile, results)
-    print(f"retarget: {summary['recordings']} recordings, {summary['frames']} frames, {summary['failed_frames']} failed, "
-          f"mean fingertip residual {summary['residual_mean_mm']:.2f} mm "
-          f"-> {RETARGETED.folder(layout.lake)}")  # fmt: skip
+    print(
+        f"retarget: {summary['recordings']} recordings, {summary['frames']} frames, {summary['failed_frames']} failed, "
+        f"mean fingertip residual {summary['residual_mean_mm']:.2f} mm "
+        f"-> {RETARGETED.folder(layout.lake)}"
+    )
     return summary

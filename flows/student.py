@@ -56,9 +56,13 @@ def student(profile: str = "smoke", data: str | None = None, variants: list[str]
     report_student(profile, trained_rows, rows)
     for t in trained_rows:
         print(
-            f"student {t['variant']:12s} val loss {t['initial_val_loss']:.4f} -> {t['final_val_loss']:.4f} ({t['steps']} updates)"
+            f"student {t['variant']:12s} val loss {t['initial_val_loss']:.4f} -> {t['final_val_loss']:.4f} "
+            f"({t['steps']} updates)"
         )
     for r in rows:
-        print(f"student {r['variant']:12s} {r['task']:7s} joint error {r['joint_error_student']:.4f} rad (kinematic input {r['joint_error_kinematic']:.4f}), "
-              f"contact F1 {r['contact_f1']:.3f} (predicted {r['predicted_contact_f1']:.3f})")  # fmt: skip
+        print(
+            f"student {r['variant']:12s} {r['task']:7s} joint error {r['joint_error_student']:.4f} rad "
+            f"(kinematic input {r['joint_error_kinematic']:.4f}), "
+            f"contact F1 {r['contact_f1']:.3f} (predicted {r['predicted_contact_f1']:.3f})"
+        )
     return {"split": split, "trained": trained_rows, "heldout": rows}

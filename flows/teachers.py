@@ -50,6 +50,7 @@ def teachers(
     table = report_teachers(profile, results)
     for r in table:
         print(
-            f"teachers: {r['task']:7s} {r['method']:16s} success {r['success_rate']:.2f}  contact F1 {r['contact_f1']:.3f}"
+            f"teachers: {r['task']:7s} {r['method']:16s} success {r['success_rate']:.2f}  contact F1 "
+            f"{r['contact_f1']:.3f}"
         )
     return table

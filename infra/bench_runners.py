@@ -76,7 +76,7 @@ def main() -> None:
             out = subprocess.run(
                 [sys.executable, __file__, "--one", kind, "--profile", args.profile, "--data", str(data)],
                 env=env, capture_output=True, text=True, check=True,
-            )  # fmt: skip
+            )
             rows.append({**json.loads(out.stdout.strip().splitlines()[-1]), "load_1min": round(os.getloadavg()[0], 1)})
             print(json.dumps(rows[-1]), flush=True)
     print("\n| runner | ingest flow run (s), each round | files |\n|---|---|---|")

@@ -33,8 +33,21 @@ TIMELINES_PER_RUN = 2
 
 # The metrics every (source, task, method) run logs, NaN where undefined, so that the MLflow
 # UI can compare every run on the same columns.
-RUN_METRICS = ("precision", "recall", "f1", "fpr", "onset_error_ms", "onset_pairs", "tp", "fp", "fn", "tn",
-               "n_sequences", "onset_missing_reference", "onset_missing_evaluated")  # fmt: skip
+RUN_METRICS = (
+    "precision",
+    "recall",
+    "f1",
+    "fpr",
+    "onset_error_ms",
+    "onset_pairs",
+    "tp",
+    "fp",
+    "fn",
+    "tn",
+    "n_sequences",
+    "onset_missing_reference",
+    "onset_missing_evaluated",
+)
 
 
 def _records(frame: pd.DataFrame, table: str) -> list[dict]:
@@ -97,9 +110,13 @@ def _summary(metrics: pd.DataFrame, onsets: pd.DataFrame) -> pd.DataFrame:
     ]
     o = onsets[(onsets["sequence_id"] == ALL) & (onsets["region"] == ALL)]
     o = o[[*keys, "error_ms", "n", "n_missing_reference", "n_missing_evaluated"]].rename(
-        columns={"error_ms": "onset_error_ms", "n": "onset_pairs",
-                 "n_missing_reference": "onset_missing_reference", "n_missing_evaluated": "onset_missing_evaluated"}
-    )  # fmt: skip
+        columns={
+            "error_ms": "onset_error_ms",
+            "n": "onset_pairs",
+            "n_missing_reference": "onset_missing_reference",
+            "n_missing_evaluated": "onset_missing_evaluated",
+        }
+    )
     return m.merge(o, on=keys, how="outer").sort_values(keys, ignore_index=True)
 
 
@@ -120,9 +137,14 @@ def _timelines(lake: Path, reference: str, source: str, method: str, task_name: 
 
 @task(cache_policy=cache_policy(*_LIBRARY, "tasks.tracking"), persist_result=True)
 def log_evaluation(
-    data: str, profile: str, reference: str, contact_metrics: list[dict], onset_summaries: list[dict],
-    lake_digest: str, tracking_uri: str,
-) -> dict[str, str]:  # fmt: skip
+    data: str,
+    profile: str,
+    reference: str,
+    contact_metrics: list[dict],
+    onset_summaries: list[dict],
+    lake_digest: str,
+    tracking_uri: str,
+) -> dict[str, str]:
     """One MLflow run per (source, task, method) in the "evaluate" experiment, plus a summary run.
 
     Each run has params source/task/method (task "*" = all tasks) and metrics precision, recall,
@@ -150,8 +172,12 @@ def log_evaluation(
             with tracking.stage_run(layout, "evaluate", name, tags) as run:
                 mlflow.log_params({"source": row.source, "task": row.task, "method": row.method})
                 values = {k: float(getattr(row, k)) for k in RUN_METRICS}
-                regional = metrics[(metrics["source"] == row.source) & (metrics["method"] == row.method)
-                                   & (metrics["task"] == row.task) & (metrics["region"] != ALL)]  # fmt: skip
+                regional = metrics[
+                    (metrics["source"] == row.source)
+                    & (metrics["method"] == row.method)
+                    & (metrics["task"] == row.task)
+                    & (metrics["region"] != ALL)
+                ]
                 values |= {f"f1_{r.region}": float(r.f1) for r in regional.itertuples(index=False)}
                 mlflow.log_metrics(values)
                 if row.task != ALL:
@@ -169,8 +195,11 @@ def log_evaluation(
     return runs
 
 
-@task(cache_policy=cache_policy(*_LIBRARY, "tasks.tracking"), persist_result=True,
-      task_run_name="log-user-study-{ratings_sha256:.12}")  # fmt: skip
+@task(
+    cache_policy=cache_policy(*_LIBRARY, "tasks.tracking"),
+    persist_result=True,
+    task_run_name="log-user-study-{ratings_sha256:.12}",
+)
 def log_user_study(data: str, profile: str, path: str, ratings_sha256: str, rows: list[dict], tracking_uri: str) -> str:
     """One MLflow run for a ratings file's user study: per-question metrics, the table, a box plot.
 
@@ -186,12 +215,31 @@ def log_user_study(data: str, profile: str, path: str, ratings_sha256: str, rows
     tags = {"kind": "user_study", "profile": profile, "synthetic": str(synthetic).lower()}
     with tracking.stage_run(layout, "evaluate", name, tags) as run, tempfile.TemporaryDirectory() as tmp:
         first = table.iloc[0]
-        mlflow.log_params({"ratings_file": Path(path).name, "ratings_sha256": ratings_sha256, "zero_method": first["zero_method"],
-                           "wilcoxon_method": first["method"], "correction": bool(first["correction"]), "n": int(first["n"])})  # fmt: skip
+        mlflow.log_params(
+            {
+                "ratings_file": Path(path).name,
+                "ratings_sha256": ratings_sha256,
+                "zero_method": first["zero_method"],
+                "wilcoxon_method": first["method"],
+                "correction": bool(first["correction"]),
+                "n": int(first["n"]),
+            }
+        )
         for r in table.itertuples(index=False):
-            mlflow.log_metrics({f"{key}_{r.question}": float(getattr(r, key)) for key in
-                                ("p", "p_holm", "statistic", "median_visual_feedback", "median_touch2robot",
-                                 "iqr_visual_feedback", "iqr_touch2robot")})  # fmt: skip
+            mlflow.log_metrics(
+                {
+                    f"{key}_{r.question}": float(getattr(r, key))
+                    for key in (
+                        "p",
+                        "p_holm",
+                        "statistic",
+                        "median_visual_feedback",
+                        "median_touch2robot",
+                        "iqr_visual_feedback",
+                        "iqr_touch2robot",
+                    )
+                }
+            )
         table.to_csv(Path(tmp) / "user_study.csv", index=False)
         mlflow.log_artifact(str(Path(tmp) / "user_study.csv"))
         title = f"{Path(path).name}{' — SYNTHETIC ratings, not a study' if synthetic else ''}"
@@ -211,7 +259,10 @@ def publish_artefacts(
     create_table_artifact(
         key="evaluate-contact-metrics",
         table=shown.round(4).astype(object).where(shown.notna(), None).to_dict(orient="records"),
-        description=f"Contact fidelity and onset error per source/method/task vs the human reference ({profile}; task '*' = all)",
+        description=(
+            f"Contact fidelity and onset error per source/method/task vs the human reference "
+            f"({profile}; task '*' = all)"
+        ),
     )
     study_rows = [r for s in studies for r in s["rows"]]
     if study_rows:
@@ -233,8 +284,10 @@ def publish_artefacts(
                     )
                 }
                 for r in study_rows
-            ],  # fmt: skip
-            description="Paired two-sided Wilcoxon signed-rank per question, Holm-corrected (synthetic = example ratings)",
+            ],
+            description=(
+                "Paired two-sided Wilcoxon signed-rank per question, Holm-corrected (synthetic = example ratings)"
+            ),
         )
     lines = [f"# Evaluate ({profile})", "", f"{len(runs)} MLflow runs in experiment `touch2robot/evaluate`.", ""]
     for s in studies:

@@ -23,8 +23,12 @@ from touch2robot.ingest import ingest_file, recording_rows, superseded_ids
 from touch2robot.settings import DataLayout
 
 
-@task(cache_policy=cache_policy("touch2robot.ingest", "touch2robot.recording", "touch2robot.lake"),
-      persist_result=True, retries=1, task_run_name="ingest-{content_sha:.12}")  # fmt: skip
+@task(
+    cache_policy=cache_policy("touch2robot.ingest", "touch2robot.recording", "touch2robot.lake"),
+    persist_result=True,
+    retries=1,
+    task_run_name="ingest-{content_sha:.12}",
+)
 def ingest_recording(path: str, content_sha: str, lake: str) -> dict:
     """Ingest one MCAP file (keyed by its content hash) into the lake."""
     result = ingest_file(Path(path), Path(lake))
@@ -42,9 +46,11 @@ def remove_superseded(lake: str, current: dict[str, str]) -> list[str]:
     return stale
 
 
-@task(cache_policy=cache_policy("touch2robot.contacts", "touch2robot.lake", "touch2robot.datasets"),
-      persist_result=True,
-      task_run_name="human-contacts-{recording[recording_id]}")  # fmt: skip
+@task(
+    cache_policy=cache_policy("touch2robot.contacts", "touch2robot.lake", "touch2robot.datasets"),
+    persist_result=True,
+    task_run_name="human-contacts-{recording[recording_id]}",
+)
 def extract_human_contacts(recording: dict, config: ContactsConfig, lake: str) -> dict:
     """Human contacts + glove thresholds of one glove session."""
     rows, thresholds = human_contacts(Path(lake), recording, config)
@@ -54,9 +60,11 @@ def extract_human_contacts(recording: dict, config: ContactsConfig, lake: str) -
     return {"recording_id": rid, "rows": rows.num_rows, "thresholds": thresholds.to_pylist()}
 
 
-@task(cache_policy=cache_policy("touch2robot.contacts", "touch2robot.lake", "touch2robot.datasets"),
-      persist_result=True,
-      task_run_name="real-contacts-{replay[recording_id]}")  # fmt: skip
+@task(
+    cache_policy=cache_policy("touch2robot.contacts", "touch2robot.lake", "touch2robot.datasets"),
+    persist_result=True,
+    task_run_name="real-contacts-{replay[recording_id]}",
+)
 def extract_real_contacts(
     replay: dict, calibration_id: str, reference: dict | None, config: ContactsConfig, lake: str
 ) -> dict:
@@ -149,7 +157,8 @@ def report_ingest(data: str, profile: str, results: list[dict], contact_summarie
         key="ingest-summary",
         markdown=(
             f"# Ingest ({profile})\n\n| files | ingested | unchanged | quarantined |\n|---|---|---|---|\n"
-            f"| {len(results)} | {statuses.count('ingested')} | {statuses.count('unchanged')} | {len(quarantined)} |\n\n"
+            f"| {len(results)} | {statuses.count('ingested')} | {statuses.count('unchanged')} | "
+            f"{len(quarantined)} |\n\n"
             + "".join(f"- quarantined `{Path(q['path']).name}`: {q['reason']}\n" for q in quarantined)
             + f"\nMLflow run `{run_id}`; catalog `{layout.catalog}`\n"
         ),

@@ -110,9 +110,16 @@ def forward_worker_logs() -> Callable[[str, Any], tuple[str, Any]]:
         level = int(payload.get("level", logging.INFO)) if kind == "log" and isinstance(payload, dict) else 0
         if handler is not None and level >= max(handler.level, 1):
             created = datetime.datetime.fromisoformat(payload["timestamp"]).timestamp()
-            record = logging.makeLogRecord({"name": payload.get("name", ""), "levelno": level,
-                                            "levelname": logging.getLevelName(level), "msg": payload.get("message", ""),
-                                            "created": created, "msecs": (created % 1) * 1000})  # fmt: skip
+            record = logging.makeLogRecord(
+                {
+                    "name": payload.get("name", ""),
+                    "levelno": level,
+                    "levelname": logging.getLevelName(level),
+                    "msg": payload.get("message", ""),
+                    "created": created,
+                    "msecs": (created % 1) * 1000,
+                }
+            )
             handler.handle(record)
         return kind, payload
 
@@ -142,8 +149,13 @@ class TrainingProgress:
         from prefect import get_run_logger
 
         self.label, self.unit, self.total, self.headline, self.done, self.every_s = (
-            label, unit, total, headline, done, every_s,
-        )  # fmt: skip
+            label,
+            unit,
+            total,
+            headline,
+            done,
+            every_s,
+        )
         self.logger = get_run_logger().getChild("progress")
         self._start: tuple[float, int] | None = None  # (time, units done) at the first call
         self._last_s = -float("inf")

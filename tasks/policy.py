@@ -55,8 +55,14 @@ def build_policy_dataset(source: dict, config: PolicyConfig, sim: SimConfig, dat
     summary = build_dataset(
         root, source["task"], source["method"], rollouts, build_scene(source["task"], sim), sim, config
     )
-    get_run_logger().info("%s: %d episodes, %d frames, rendering %.0f images/s, replay error max %.2e rad",
-                          root.name, summary.episodes, summary.frames, summary.render_fps, summary.replay_max_joint_error_rad)  # fmt: skip
+    get_run_logger().info(
+        "%s: %d episodes, %d frames, rendering %.0f images/s, replay error max %.2e rad",
+        root.name,
+        summary.episodes,
+        summary.frames,
+        summary.render_fps,
+        summary.replay_max_joint_error_rad,
+    )
     return {**source, **summary.__dict__}
 
 
@@ -114,8 +120,12 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -
                 "dataset/replay_max_joint_error_rad": dataset["replay_max_joint_error_rad"],
             }
         )
-        progress = TrainingProgress(f"policy {dataset['task']}/{dataset['method']}", "update", config.steps,
-                                    lambda metrics: f"loss {metrics['loss']:.4f}")  # fmt: skip
+        progress = TrainingProgress(
+            f"policy {dataset['task']}/{dataset['method']}",
+            "update",
+            config.steps,
+            lambda metrics: f"loss {metrics['loss']:.4f}",
+        )
         with checkpoint_on_stop() as stop_requested:
             result = train(
                 Path(dataset["root"]),
@@ -163,22 +173,44 @@ def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: s
     result, fit, replay = outcome.closed_loop, outcome.fit, outcome.replay
     low, high = result.wilson
     row = {
-        "task": trained["task"], "method": trained["method"], "origin": trained["origin"], "profile": profile,
-        "dataset_episodes": trained["episodes"], "dataset_frames": trained["frames"], "train_steps": trained["steps"],
-        "final_loss": trained["last_loss"], "episodes": len(result.success), "successes": int(result.success.sum()),
-        "success_rate": result.success_rate, "ci_low": low, "ci_high": high, "mean_progress": float(result.progress.mean()),
-        "replay_successes": int(replay.success.sum()), "replay_success_rate": replay.success_rate,
-        "fit_joint_err_rad": fit.joint_err_rad, "fit_wrist_err_mm": fit.wrist_err_mm,
-        "hold_joint_err_rad": fit.hold_joint_err_rad, "hold_wrist_err_mm": fit.hold_wrist_err_mm,
-        "episode_steps": result.steps, "replans": result.replans, "mlflow_run": trained["mlflow_run"],
-    }  # fmt: skip
+        "task": trained["task"],
+        "method": trained["method"],
+        "origin": trained["origin"],
+        "profile": profile,
+        "dataset_episodes": trained["episodes"],
+        "dataset_frames": trained["frames"],
+        "train_steps": trained["steps"],
+        "final_loss": trained["last_loss"],
+        "episodes": len(result.success),
+        "successes": int(result.success.sum()),
+        "success_rate": result.success_rate,
+        "ci_low": low,
+        "ci_high": high,
+        "mean_progress": float(result.progress.mean()),
+        "replay_successes": int(replay.success.sum()),
+        "replay_success_rate": replay.success_rate,
+        "fit_joint_err_rad": fit.joint_err_rad,
+        "fit_wrist_err_mm": fit.wrist_err_mm,
+        "hold_joint_err_rad": fit.hold_joint_err_rad,
+        "hold_wrist_err_mm": fit.hold_wrist_err_mm,
+        "episode_steps": result.steps,
+        "replans": result.replans,
+        "mlflow_run": trained["mlflow_run"],
+    }
     key = datasets.MethodTaskKey(trained["method"], trained["task"])
     datasets.POLICY_EVAL.write(layout.lake, key, pa.Table.from_pylist([row]))
     tracking.experiment(layout, "policy")
     with mlflow.start_run(run_id=trained["mlflow_run"]):
-        mlflow.log_metrics({"eval/success_rate": row["success_rate"], "eval/ci_low": low, "eval/ci_high": high, "eval/mean_progress": row["mean_progress"],
-                            "eval/replay_success_rate": row["replay_success_rate"],
-                            **{f"fit/{k}": v for k, v in fit.__dict__.items() if k != "frames"}})  # fmt: skip
+        mlflow.log_metrics(
+            {
+                "eval/success_rate": row["success_rate"],
+                "eval/ci_low": low,
+                "eval/ci_high": high,
+                "eval/mean_progress": row["mean_progress"],
+                "eval/replay_success_rate": row["replay_success_rate"],
+                **{f"fit/{k}": v for k, v in fit.__dict__.items() if k != "frames"},
+            }
+        )
         with tempfile.TemporaryDirectory() as tmp:
             for i, frames in enumerate(result.videos):
                 mlflow.log_artifact(str(write_video(frames, Path(tmp) / f"episode_{i:02d}.mp4")), "videos")

@@ -48,9 +48,12 @@ def _summary(result: RetargetResult) -> dict:
     }
 
 
-@task(cache_policy=cache_policy("touch2robot.retarget", "touch2robot.leap", "touch2robot.lake", "touch2robot.datasets"),
-      persist_result=True, retries=1,
-      task_run_name="retarget-{recording[recording_id]}")  # fmt: skip
+@task(
+    cache_policy=cache_policy("touch2robot.retarget", "touch2robot.leap", "touch2robot.lake", "touch2robot.datasets"),
+    persist_result=True,
+    retries=1,
+    task_run_name="retarget-{recording[recording_id]}",
+)
 def retarget_recording(recording: dict, config: RetargetConfig, data: str, profile: str, render: bool = False) -> dict:
     """Retarget one ingested glove recording into the ``retargeted`` table, with an MLflow run
     (stage "retarget") and, if ``render``, a drawing of human vs robot over a few frames. Hand
@@ -139,8 +142,10 @@ def report_retarget(profile: str, results: list[dict]) -> dict:
     create_markdown_artifact(
         key="retarget-summary",
         markdown=(
-            f"# Retarget ({profile})\n\n| recordings | not retargeted | frames | failed frames | mean residual (mm) | worst p95 (mm) | solve (ms/frame) |\n"
-            f"|---|---|---|---|---|---|---|\n| {agg['recordings']} | {agg['not_retargeted']} | {frames} | {agg['failed_frames']} | "
+            f"# Retarget ({profile})\n\n| recordings | not retargeted | frames | failed frames | mean residual "
+            "(mm) | worst p95 (mm) | solve (ms/frame) |\n"
+            f"|---|---|---|---|---|---|---|\n| {agg['recordings']} | {agg['not_retargeted']} | {frames} | "
+            f"{agg['failed_frames']} | "
             f"{agg['residual_mean_mm']:.2f} | {agg['residual_p95_mm_worst']:.2f} | {agg['solve_ms_mean']:.2f} |\n\n"
             + "".join(f"- not retargeted `{r['file']}`: {r['error']}\n" for r in results if r["error"])
         ),

@@ -84,14 +84,22 @@ def augment_dataset(
     refs = _references(layout, trainable, teacher)
     tasks = sorted({t for role in ("train", "val") for t, ids in split[role].items() if ids})
     counts = per_task_counts(config.augmented_rollouts, [t for t in tasks if split["train"].get(t)])
-    manifest: dict = {"profile": profile, "total_rollouts": config.augmented_rollouts, "joint_noise_std": config.joint_noise_std,
-                      "seed": config.seed, "teacher_method": config.teacher_method, "in_sample": split["in_sample"], "tasks": {}}  # fmt: skip
+    manifest: dict = {
+        "profile": profile,
+        "total_rollouts": config.augmented_rollouts,
+        "joint_noise_std": config.joint_noise_std,
+        "seed": config.seed,
+        "teacher_method": config.teacher_method,
+        "in_sample": split["in_sample"],
+        "tasks": {},
+    }
     paths = {}
     for task_name in tasks:
         source = datasets.teacher_rollouts(layout.lake, config.teacher_method, task_name)
         if not source.is_file():
             raise FileNotFoundError(
-                f"student: no teacher rollouts of {config.teacher_method}/{task_name} at {source}: run the teachers flow first"
+                f"student: no teacher rollouts of {config.teacher_method}/{task_name} at {source}: run the "
+                "teachers flow first"
             )
         seqs = paired_sequences(pq.read_table(source), refs, teacher.sim.contact_threshold_n)
         train = [s for s in seqs if s.reference_id in split["train"].get(task_name, [])]
@@ -101,10 +109,17 @@ def augment_dataset(
         path = datasets.STUDENT_DATASET.write(layout.lake, datasets.TaskKey(task_name), table)
         paths[task_name] = str(path)
         manifest["tasks"][task_name] = {
-            "train_demos": split["train"].get(task_name, []), "val_demos": split["val"].get(task_name, []), "held_out_demos": split["held_out"].get(task_name, []),
-            "teacher_rollouts_train": len(train), "teacher_rollouts_val": len(val), "augmented_rollouts": count,
-            "noisy_copies": max(count - len(train), 0), "rows": table.num_rows, "file": path.name, "sha256": datasets.file_digest(path),
-        }  # fmt: skip
+            "train_demos": split["train"].get(task_name, []),
+            "val_demos": split["val"].get(task_name, []),
+            "held_out_demos": split["held_out"].get(task_name, []),
+            "teacher_rollouts_train": len(train),
+            "teacher_rollouts_val": len(val),
+            "augmented_rollouts": count,
+            "noisy_copies": max(count - len(train), 0),
+            "rows": table.num_rows,
+            "file": path.name,
+            "sha256": datasets.file_digest(path),
+        }
     with tracking.stage_run(layout, "student", "dataset", {"profile": profile, **_split_tags(split)}) as run:
         mlflow.log_params(
             {
@@ -202,8 +217,15 @@ def train_student(
         mlflow.log_metrics({"val/initial_loss": result.initial_val["loss"], "val/final_loss": result.final_val["loss"]})
     if result.resumed_from:
         get_run_logger().info("student %s resumed at update %d of %d", variant, result.resumed_from, result.steps)
-    return {"variant": variant, "folder": str(folder), "mlflow_run": run_id, "steps": result.steps, "resumed_from": result.resumed_from,
-            "initial_val_loss": result.initial_val["loss"], "final_val_loss": result.final_val["loss"]}  # fmt: skip
+    return {
+        "variant": variant,
+        "folder": str(folder),
+        "mlflow_run": run_id,
+        "steps": result.steps,
+        "resumed_from": result.resumed_from,
+        "initial_val_loss": result.initial_val["loss"],
+        "final_val_loss": result.final_val["loss"],
+    }
 
 
 def _student_loss(metrics: dict[str, float]) -> str:
@@ -304,8 +326,7 @@ def report_student(profile: str, trained: list[dict], rows: list[dict]) -> list[
     ]
     create_markdown_artifact(
         key="student-summary",
-        markdown=f"# Student ({profile})\n\n| variant | updates | val loss at init | val loss final |\n|---|---|---|---|\n"
-        + "\n".join(lines)
-        + "\n",
+        markdown=f"# Student ({profile})\n\n| variant | updates | val loss at init | val loss final |\n"
+        "|---|---|---|---|\n" + "\n".join(lines) + "\n",
     )
     return table

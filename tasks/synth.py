@@ -12,8 +12,13 @@ from touch2robot.synth.generate import RecordingJob, write_recording
 from touch2robot.synth.ratings import write_ratings_csv
 
 
-@task(cache_policy=cache_policy("touch2robot.synth", "touch2robot.scenes", "touch2robot.recording", "touch2robot.geometry"),
-      persist_result=True, task_run_name="synth-{job.stem}")  # fmt: skip
+@task(
+    cache_policy=cache_policy(
+        "touch2robot.synth", "touch2robot.scenes", "touch2robot.recording", "touch2robot.geometry"
+    ),
+    persist_result=True,
+    task_run_name="synth-{job.stem}",
+)
 def synthesize_recording(config: SynthConfig, job: RecordingJob, recordings: str, groundtruth: str) -> str:
     """Write one demonstrator recording (deterministic in config + job); returns its path."""
     return str(write_recording(config, job, Path(recordings), Path(groundtruth)))

@@ -107,20 +107,37 @@ def train_teacher(
             return None
         return f"mean return {metrics['Train/mean_reward']:.3g}" if "Train/mean_reward" in metrics else ""
 
-    progress = TrainingProgress(f"teacher {task_name}/{method}", "iteration", config.ppo.max_iterations,
-                                mean_return, done=lambda iteration: iteration + 1)  # fmt: skip
+    progress = TrainingProgress(
+        f"teacher {task_name}/{method}",
+        "iteration",
+        config.ppo.max_iterations,
+        mean_return,
+        done=lambda iteration: iteration + 1,
+    )
     try:
         with checkpoint_on_stop() as stop_requested:
-            result = train(vec_env, config, folder, on_log=both(mlflow_run.log, progress),
-                           on_checkpoint=mlflow_run.checkpoint, should_stop=stop_requested)  # fmt: skip
+            result = train(
+                vec_env,
+                config,
+                folder,
+                on_log=both(mlflow_run.log, progress),
+                on_checkpoint=mlflow_run.checkpoint,
+                should_stop=stop_requested,
+            )
     finally:
         vec_env.env.close()
     if result.resumed_from:
         get_run_logger().info(
             "teacher %s/%s resumed at iteration %d of %d", task_name, method, result.resumed_from, result.iterations
         )
-    return {"task": task_name, "method": method, "checkpoint": str(result.checkpoint), "iterations": result.iterations,
-            "resumed_from": result.resumed_from, "mlflow_run": run_id}  # fmt: skip
+    return {
+        "task": task_name,
+        "method": method,
+        "checkpoint": str(result.checkpoint),
+        "iterations": result.iterations,
+        "resumed_from": result.resumed_from,
+        "mlflow_run": run_id,
+    }
 
 
 def _store_rollouts(layout: DataLayout, task_name: str, method: str, origin: str, rollouts, contacts) -> None:

@@ -24,8 +24,16 @@ from touch2robot.synth.ratings import synthetic_ratings
 os.environ.setdefault("PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS", "120")
 
 
-def _seq(source: str, method: str, task: str, seq: str, ref: str, t: list[float], t_ref: list[float],
-         contact: dict[str, list[int]]) -> pd.DataFrame:  # fmt: skip
+def _seq(
+    source: str,
+    method: str,
+    task: str,
+    seq: str,
+    ref: str,
+    t: list[float],
+    t_ref: list[float],
+    contact: dict[str, list[int]],
+) -> pd.DataFrame:
     """Long contacts rows of one sequence (one row per time x region)."""
     frames = [
         pd.DataFrame({"t": t, "t_ref": t_ref, "region": region, "contact": np.asarray(c, dtype=bool)})
@@ -107,10 +115,12 @@ def test_onset_errors_pairs_and_summaries() -> None:
         {"T1": [0, 0, 1, 1], "P1": [0, 1, 0, 0]},
     )
     time_map = pd.DataFrame({"recording_id": "r1", "t": [0.0, 6.0], "t_ref": [0.0, 3.0]})
-    sim = pd.concat([
-        _seq("sim", "m", "pick", "s1", "h1", T4, T4, {"T1": [1, 1, 1, 1], "P1": [0, 0, 0, 0]}),
-        _seq("sim", "m", "pick", "s2", "h1", T4, T4, {"T1": [0, 1, 0, 0], "P1": [0, 0, 0, 0]}),
-    ])  # fmt: skip
+    sim = pd.concat(
+        [
+            _seq("sim", "m", "pick", "s1", "h1", T4, T4, {"T1": [1, 1, 1, 1], "P1": [0, 0, 0, 0]}),
+            _seq("sim", "m", "pick", "s2", "h1", T4, T4, {"T1": [0, 1, 0, 0], "P1": [0, 0, 0, 0]}),
+        ]
+    )
     contacts = pd.concat([human, real, sim], ignore_index=True)
 
     r = ev.onset_errors_table(contacts, time_map, "real")

@@ -28,8 +28,12 @@ def _start(data: Path) -> subprocess.Popen:
     env.pop("PREFECT_LOCAL_STORAGE_PATH", None)
     return subprocess.Popen(
         [sys.executable, "-c", RUN_INGEST.format(data=str(data))],
-        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, start_new_session=True,
-    )  # fmt: skip
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
 
 
 def _run(data: Path) -> str:

@@ -90,9 +90,16 @@ def ignored(path: str, patterns: list[str]) -> bool:
 
 def test_compose_parses_with_the_expected_services() -> None:
     assert set(services()) == {
-        "prefect-db", "redis", "prefect-server", "prefect-services",
-        "mlflow-db", "s3", "create-bucket", "mlflow", "worker",
-    }  # fmt: skip
+        "prefect-db",
+        "redis",
+        "prefect-server",
+        "prefect-services",
+        "mlflow-db",
+        "s3",
+        "create-bucket",
+        "mlflow",
+        "worker",
+    }
 
 
 def test_every_variable_is_in_env_example() -> None:
@@ -225,7 +232,10 @@ def compose_plugin() -> bool:
 def test_docker_compose_config_is_clean() -> None:
     out = subprocess.run(
         ["docker", "compose", "-f", str(COMPOSE), "--env-file", str(ENV_EXAMPLE), "config", "--quiet"],
-        capture_output=True, text=True, timeout=60, check=False,
-    )  # fmt: skip
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=False,
+    )
     assert out.returncode == 0, out.stderr
     assert not out.stderr.strip(), out.stderr  # no warnings either

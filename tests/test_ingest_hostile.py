@@ -231,8 +231,14 @@ def test_the_demonstrators_recordings_are_plausible(smoke_data: Path, tmp_path: 
 
 def test_replays_link_to_the_calibration_and_session_of_their_own_folder() -> None:
     def row(folder: str, name: str, kind: str, **extra) -> dict:
-        return {"recording_id": f"{folder}-{name}", "path": f"/data/recordings/{folder}/{name}", "file_name": name,
-                "kind": kind, "status": "ingested", **extra}  # fmt: skip
+        return {
+            "recording_id": f"{folder}-{name}",
+            "path": f"/data/recordings/{folder}/{name}",
+            "file_name": name,
+            "kind": kind,
+            "status": "ingested",
+            **extra,
+        }
 
     rows = []
     for folder in ("s1", "s2"):

@@ -71,8 +71,12 @@ def start_flow(module: str, flow: str, data: Path, log: Path) -> subprocess.Pope
     with open(log, "w") as out:  # the child keeps its own descriptor
         return subprocess.Popen(
             [sys.executable, "-c", RUN_FLOW.format(module=module, flow=flow), str(data)],
-            cwd=ROOT, env=flow_env(data), stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
-        )  # fmt: skip
+            cwd=ROOT,
+            env=flow_env(data),
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
 
 
 @pytest.fixture

@@ -113,9 +113,14 @@ def probe(tmp_path_factory: pytest.TempPathFactory) -> dict:
     }
     env.pop("PREFECT_API_URL", None)  # the embedded API: the case where workers must be told where it is
     proc = subprocess.Popen(
-        [sys.executable, str(script), profile], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-        text=True, start_new_session=True,
-    )  # fmt: skip
+        [sys.executable, str(script), profile],
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
     try:
         output, _ = proc.communicate(timeout=400)
     finally:
@@ -291,8 +296,12 @@ def test_a_stopped_flow_run_stops_its_trainings_instead_of_waiting_for_them(tmp_
     with open(log, "w") as out:
         proc = subprocess.Popen(
             [sys.executable, str(tmp_path / "run.py"), str(tmp_path / "data"), str(tmp_path), str(started)],
-            cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT, start_new_session=True,
-        )  # fmt: skip
+            cwd=ROOT,
+            env=env,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            start_new_session=True,
+        )
     try:
         deadline = time.monotonic() + 300
         while len(list(started.glob("*.pid"))) < 2 and proc.poll() is None and time.monotonic() < deadline:

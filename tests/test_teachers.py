@@ -302,8 +302,13 @@ def test_a_teacher_training_calls_on_log_per_iteration_with_its_metrics(
     calls: list[tuple[int, dict[str, float]]] = []
     saved: list[str] = []
     try:
-        train(vec_env, SMALL, tmp_path / "teacher", on_log=lambda step, m: calls.append((step, m)),
-              on_checkpoint=saved.append)  # fmt: skip
+        train(
+            vec_env,
+            SMALL,
+            tmp_path / "teacher",
+            on_log=lambda step, m: calls.append((step, m)),
+            on_checkpoint=saved.append,
+        )
     finally:
         vec_env.env.close()
     iterations = [(step, m) for step, m in calls if not all(k.endswith(WALL_CLOCK_SUFFIX) for k in m)]

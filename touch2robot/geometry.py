@@ -237,7 +237,9 @@ def sample_surface(geoms: tuple[GeomSpec, ...], n: int, seed: int = 0) -> np.nda
     have = 0
     while have < n:
         counts = rng.multinomial(2 * n, areas / areas.sum())
-        batch = np.concatenate([_sample_primitive_surface(g, c, rng) for g, c in zip(geoms, counts) if c > 0])
+        batch = np.concatenate(
+            [_sample_primitive_surface(g, c, rng) for g, c in zip(geoms, counts, strict=True) if c > 0]
+        )
         keep = body_sdf(geoms, batch) > -1e-6  # on the union's outer surface
         out.append(batch[keep])
         have += int(keep.sum())

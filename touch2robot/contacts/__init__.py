@@ -132,7 +132,7 @@ def long_rows(
     contact: np.ndarray,
     value: np.ndarray,
 ) -> pa.Table:
-    """Wide (time, region) arrays -> rows of the long ``contacts`` table."""  # fmt: skip
+    """Wide (time, region) arrays -> rows of the long ``contacts`` table."""
     n, k = contact.shape
     const = lambda v: pa.array([v] * (n * k), pa.string())  # noqa: E731
     return pa.table(

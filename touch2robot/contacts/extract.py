@@ -36,10 +36,18 @@ def human_contacts(lake: Path, recording: dict, config: ContactsConfig) -> tuple
     contact, resp, thr = glove_contacts(t, _matrix(taxels, "values"), config)
     keep = [HUMAN_REGIONS.index(r) for r in ROBOT_REGIONS]
     rows = long_rows(
-        source="human", method="human", task=recording["task"], subject=recording["subject"],
-        sequence_id=rid, reference_id=rid, t=t, t_ref=t, regions=ROBOT_REGIONS,
-        contact=contact[:, keep], value=resp[:, keep],
-    )  # fmt: skip
+        source="human",
+        method="human",
+        task=recording["task"],
+        subject=recording["subject"],
+        sequence_id=rid,
+        reference_id=rid,
+        t=t,
+        t_ref=t,
+        regions=ROBOT_REGIONS,
+        contact=contact[:, keep],
+        value=resp[:, keep],
+    )
     baseline = float(np.median(thr.baseline[np.asarray(TAXEL_REGION) != "-"]))
     method = (
         "k*robust-noise of the smoothed regional response "
@@ -77,9 +85,13 @@ def replay_contacts(
     tt_values = tt_raw - mean
     tip_value = np.stack([tt_values[:, 4 * k : 4 * k + 4].max(axis=1) for k in range(4)], 1)
     common = dict(
-        source="real", method=replay["method"], task=replay["task"], subject=replay["subject"],
-        sequence_id=rid, reference_id=reference["recording_id"] if reference else "",
-    )  # fmt: skip
+        source="real",
+        method=replay["method"],
+        task=replay["task"],
+        subject=replay["subject"],
+        sequence_id=rid,
+        reference_id=reference["recording_id"] if reference else "",
+    )
     rows = pa.concat_tables(
         [
             long_rows(

@@ -178,7 +178,7 @@ def read_rollouts(path: Path, limit: int | None = None, references: list[str] | 
     ids = ids[order]
     names, starts = np.unique(ids, return_index=True)
     ends = np.append(starts[1:], len(ids))
-    spans = list(zip(names, starts, ends))
+    spans = list(zip(names, starts, ends, strict=True))
     if references is not None:
         first_of: dict[str, tuple] = {}
         for span in spans:
@@ -216,8 +216,13 @@ def reset_to_first_rows(env: BatchEnv, rollouts: list[Rollout], object_pose: np.
     """Reset the copies of ``env`` to the rollouts' reset rows (the rollouts contract), optionally
     with other object poses (evaluation jitters the start)."""
     first = lambda field: np.stack([getattr(r, field)[0] for r in rollouts])  # noqa: E731
-    env.reset_pose(np.arange(env.n), first("joint_position"), first("wrist_state"),
-                   first("object_pose") if object_pose is None else object_pose, first("drawer_opening"))  # fmt: skip
+    env.reset_pose(
+        np.arange(env.n),
+        first("joint_position"),
+        first("wrist_state"),
+        first("object_pose") if object_pose is None else object_pose,
+        first("drawer_opening"),
+    )
 
 
 def recorded_commands(rollouts: list[Rollout], t: int) -> tuple[np.ndarray, np.ndarray]:
@@ -375,7 +380,7 @@ def _replay(
             targets, wrist = recorded_commands(batch, t)
             for k, i in enumerate(live):
                 ep = episodes[i]
-                for cam, key in zip(renderer.cameras, cams):
+                for cam, key in zip(renderer.cameras, cams, strict=True):
                     ep[key].append(images[cam][k])
                 ep["observation.state"].append(state[i].astype(np.float32))
                 ep["observation.environment_state"].append(force[i].astype(np.float32))

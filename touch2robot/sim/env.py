@@ -101,8 +101,13 @@ class BatchEnv:
         self._rollout.close()
 
     # ------------------------------------------------------------------ stepping
-    def step(self, joint_targets: np.ndarray, wrist_pos: np.ndarray | None = None, wrist_quat: np.ndarray | None = None,
-             object_force: np.ndarray | None = None) -> None:  # fmt: skip
+    def step(
+        self,
+        joint_targets: np.ndarray,
+        wrist_pos: np.ndarray | None = None,
+        wrist_quat: np.ndarray | None = None,
+        object_force: np.ndarray | None = None,
+    ) -> None:
         """Advance all copies by one control step. Targets are clipped to the joint ranges.
         ``object_force`` (N, 6) for a free object (world force, then torque in the object's
         frame) or (N, 1) for the drawer slide is a generalised force on the object's joint,
@@ -139,8 +144,14 @@ class BatchEnv:
         self.time_step += 1
         self.tracker.update(self.object_pos, self.object_quat, self.drawer_opening)
 
-    def reset(self, ids: np.ndarray, qpos: np.ndarray | None = None, joint_targets: np.ndarray | None = None,
-              wrist_pos: np.ndarray | None = None, wrist_quat: np.ndarray | None = None) -> None:  # fmt: skip
+    def reset(
+        self,
+        ids: np.ndarray,
+        qpos: np.ndarray | None = None,
+        joint_targets: np.ndarray | None = None,
+        wrist_pos: np.ndarray | None = None,
+        wrist_quat: np.ndarray | None = None,
+    ) -> None:
         """Put copies ``ids`` back to the home state, optionally with given qpos (len(ids), nq),
         servo targets and wrist pose; velocities are zeroed."""
         ids = np.asarray(ids)

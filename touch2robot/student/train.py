@@ -14,6 +14,7 @@ A checkpoint (model, optimizer, sampling generator and RNG states, curves) is wr
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -52,8 +53,14 @@ class Windows:
 
     def batch(self, which: torch.Tensor) -> dict[str, torch.Tensor]:
         rows = self.starts[which][:, None] + torch.arange(self.history)
-        return {"inputs": self.inputs[rows], "joints": self.joints[rows], "wrist": self.wrist[rows],
-                "contact": self.contact[rows], "valid": self.valid[rows], "cloud": self.cloud[rows[:, -1]]}  # fmt: skip
+        return {
+            "inputs": self.inputs[rows],
+            "joints": self.joints[rows],
+            "wrist": self.wrist[rows],
+            "contact": self.contact[rows],
+            "valid": self.valid[rows],
+            "cloud": self.cloud[rows[:, -1]],
+        }
 
 
 def windows_from_table(table: pa.Table, tasks: list[str], history: int) -> Windows:
@@ -63,7 +70,7 @@ def windows_from_table(table: pa.Table, tasks: list[str], history: int) -> Windo
     starts, offset = [], 0
     ids = table["sample_id"].to_numpy(zero_copy_only=False)
     bounds = np.flatnonzero(np.r_[True, ids[1:] != ids[:-1], True]) if len(ids) else np.array([0])
-    for a, b in zip(bounds[:-1], bounds[1:]):
+    for a, b in itertools.pairwise(bounds):
         rows = table.slice(a, b - a)
         wrist = column(rows, "wrist_pose")
         arrays = {
@@ -86,10 +93,15 @@ def windows_from_table(table: pa.Table, tasks: list[str], history: int) -> Windo
     cat = {k: np.concatenate(v) if v else np.zeros((0,)) for k, v in parts.items()}
     as_float = lambda k: torch.as_tensor(cat[k], dtype=torch.float32)  # noqa: E731
     return Windows(
-        inputs=as_float("inputs"), joints=as_float("joints"), wrist=as_float("wrist"), contact=as_float("contact"),
-        valid=torch.as_tensor(cat["valid"], dtype=torch.bool), cloud=torch.as_tensor(cat["cloud"], dtype=torch.long),
-        starts=torch.as_tensor(np.concatenate(starts) if starts else np.zeros(0), dtype=torch.long), history=history,
-    )  # fmt: skip
+        inputs=as_float("inputs"),
+        joints=as_float("joints"),
+        wrist=as_float("wrist"),
+        contact=as_float("contact"),
+        valid=torch.as_tensor(cat["valid"], dtype=torch.bool),
+        cloud=torch.as_tensor(cat["cloud"], dtype=torch.long),
+        starts=torch.as_tensor(np.concatenate(starts) if starts else np.zeros(0), dtype=torch.long),
+        history=history,
+    )
 
 
 def hide_tactile(inputs: torch.Tensor, hidden: torch.Tensor) -> torch.Tensor:
@@ -149,9 +161,15 @@ def _save(path: Path, state: dict) -> None:
     tmp.replace(path)
 
 
-def train(train_set: Windows, val_set: Windows, clouds: torch.Tensor, cfg: StudentConfig, folder: Path,
-          on_log: Callable[[int, dict[str, float]], None] | None = None,
-          should_stop: Callable[[], bool] | None = None) -> TrainResult:  # fmt: skip
+def train(
+    train_set: Windows,
+    val_set: Windows,
+    clouds: torch.Tensor,
+    cfg: StudentConfig,
+    folder: Path,
+    on_log: Callable[[int, dict[str, float]], None] | None = None,
+    should_stop: Callable[[], bool] | None = None,
+) -> TrainResult:
     """Distil the student on ``train_set`` (``clouds`` (K, P, 3): the objects' surface points),
     validating on ``val_set``; resumes from ``folder``/checkpoint.pt when present. ``should_stop()``
     (asked after every update) turning true ends the call early, checkpointed where it is: the
@@ -209,8 +227,19 @@ def train(train_set: Windows, val_set: Windows, clouds: torch.Tensor, cfg: Stude
             running = {}
         stopping = should_stop is not None and should_stop()
         if step % cfg.checkpoint_interval == 0 or step == cfg.steps or stopping:
-            _save(path, {"net": net.state_dict(), "optimizer": optimizer.state_dict(), "generator": generator.get_state(),
-                         "torch_rng": torch.get_rng_state(), "step": step, "initial_val": initial, "curve": curve, "running": running})  # fmt: skip
+            _save(
+                path,
+                {
+                    "net": net.state_dict(),
+                    "optimizer": optimizer.state_dict(),
+                    "generator": generator.get_state(),
+                    "torch_rng": torch.get_rng_state(),
+                    "step": step,
+                    "initial_val": initial,
+                    "curve": curve,
+                    "running": running,
+                },
+            )
         if stopping:
             break
     net.eval()

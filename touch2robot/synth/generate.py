@@ -253,9 +253,11 @@ def _write_replay(config: SynthConfig, job: RecordingJob, path: Path, gt_path: P
     }
     with RecordingWriter(path, "robot_replay", metadata) as w:
         events = sorted(
-            [(t, 0, i) for i, t in enumerate(t_tt)] + [(t, 1, i) for i, t in enumerate(t_fsr)]
-            + [(t, 2, i) for i, t in enumerate(t_js)] + [(t, 3, i) for i, t in enumerate(t_tg)]
-        )  # fmt: skip
+            [(t, 0, i) for i, t in enumerate(t_tt)]
+            + [(t, 1, i) for i, t in enumerate(t_fsr)]
+            + [(t, 2, i) for i, t in enumerate(t_js)]
+            + [(t, 3, i) for i, t in enumerate(t_tg)]
+        )
         for t, stream, i in events:
             s = t0_ns + round(t * 1e9)
             if stream == 0:

@@ -294,7 +294,7 @@ class DemoTracking:
         log = {"task/tracking_return": float(mean_task.mean())}
         c = self.method.contrack
         if c.enabled:
-            for d, r in zip(self.demo[ids], mean_task):
+            for d, r in zip(self.demo[ids], mean_task, strict=True):
                 self.best_task[d] = max(self.best_task[d], r)
                 violation = (c.alpha * self.best_task[d] - r) / max(abs(self.best_task[d]), 1e-3)
                 self.dual[d] = np.clip(self.dual[d] + c.dual_lr * violation, 0.0, c.lambda_max)
