@@ -6,6 +6,7 @@ from pathlib import Path
 
 from prefect import flow, get_run_logger, unmapped
 
+from schemas.vocabulary import RecordingStatus
 from tasks.common import stored
 from tasks.ingest import (
     extract_human_contacts,
@@ -35,7 +36,7 @@ def ingest(profile: str = "smoke", data: str | None = None, folder: str | None =
     paths = [str(p) for p in scan.recordings]
     digests = [datasets.file_digest(p) for p in paths]
     results = [f.result() for f in stored(ingest_recording, layout.results).map(paths, digests, unmapped(lake))]
-    current = {r["path"]: r["recording_id"] for r in results if r["status"] != "quarantined"}
+    current = {r["path"]: r["recording_id"] for r in results if r["status"] != RecordingStatus.QUARANTINED}
     remove_superseded(lake, current)
     gloves, links, problems = link_replays(recording_rows(layout.lake).to_pylist())
     for line in problems:
@@ -51,6 +52,9 @@ def ingest(profile: str = "smoke", data: str | None = None, folder: str | None =
     summaries = [f.result() for f in human] + [f.result() for f in real]
     refresh_catalog(str(layout.root))
     report = report_ingest(str(layout.root), profile, results, summaries)
-    counts = {s: sum(r["status"] == s for r in results) for s in ("ingested", "unchanged", "quarantined")}
+    counts = {
+        s: sum(r["status"] == s for r in results)
+        for s in (RecordingStatus.INGESTED, RecordingStatus.UNCHANGED, RecordingStatus.QUARANTINED)
+    }
     print(f"ingest: {counts} -> {layout.catalog}")
     return {**counts, "skipped": len(scan.skipped), "files": len(results), "report": report}

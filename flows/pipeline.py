@@ -13,6 +13,7 @@ from flows.retarget import retarget
 from flows.student import student
 from flows.synth import synth
 from flows.teachers import teachers
+from schemas.vocabulary import Origin
 
 
 @flow(name="pipeline", log_prints=True)
@@ -59,7 +60,7 @@ def headline(results: dict) -> list[tuple[str, str]]:
         by_method.setdefault(row["method"], []).append(row)
     for method, rows in by_method.items():
         figures = f"{len(rows)} tasks"
-        if rows[0]["origin"] == "teacher":
+        if rows[0]["origin"] == Origin.TEACHER:
             figures += f", {rows[0]['iterations']} iterations"
         success, f1 = fmean(r["success_rate"] for r in rows), fmean(r["contact_f1"] for r in rows)
         lines.append((f"teachers: {method}", f"{figures}, success {success:.2f}, contact F1 {f1:.3f} (task means)"))

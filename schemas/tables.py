@@ -21,9 +21,6 @@ FINGERTIP_REGIONS: tuple[str, ...] = ("T1", "T2", "T3", "T4", "T5")
 PALM_REGIONS: tuple[str, ...] = ("P1", "P2", "P3", "P4")
 
 # Contact sources appended to the `contacts` table by the stages.
-CONTACT_SOURCES: tuple[str, ...] = ("human", "sim", "real", "reconstructed")
-
-RECORDING_KINDS: tuple[str, ...] = ("glove_session", "robot_replay", "robot_calibration")
 
 
 @dataclass(frozen=True)
@@ -433,8 +430,6 @@ retargeted_doc = TableDoc(
 # hand qpos = joint_position, servo targets = joint_position, wrist body and mocap = wrist_state,
 # object = object_pose (drawer: drawer_opening)
 # (touch2robot.teachers.rollouts.reset_to_rows). Files: lake/rollouts/method=<m>/<origin>-<task>.parquet
-ROLLOUT_METHODS: tuple[str, ...] = ("touch2robot", "contrack", "dexmachina", "dex-retargeting")
-ROLLOUT_ORIGINS: tuple[str, ...] = ("teacher", "kinematic", "student")
 
 rollouts = pa.schema(
     [
@@ -464,7 +459,7 @@ rollouts_doc = TableDoc(
     "simulated robot rollouts (teacher, kinematic, student), one row per 20 Hz control step",
     {
         "rollout_id": '"<origin>-<method>-<task>-<index:03d>"',
-        "origin": "teacher | kinematic | student (ROLLOUT_ORIGINS)",
+        "origin": "teacher | kinematic | student (schemas.vocabulary.Origin)",
         "method": "touch2robot | contrack | dexmachina | dex-retargeting",
         "task": "pick | rotate | wipe | drawer",
         "subject": "the demonstrating person",

@@ -46,7 +46,8 @@ class RecordingKind(StrEnum):
 
 
 class RecordingStatus(StrEnum):
-    """The outcome of ingesting one recording file."""
+    """The outcome of ingesting one recording file (the `recordings` table holds the first two)."""
 
     INGESTED = "ingested"
     QUARANTINED = "quarantined"
+    UNCHANGED = "unchanged"  # ingested before, with the same content: nothing written

@@ -13,6 +13,7 @@ from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
 from schemas.tables import ROBOT_REGIONS
+from schemas.vocabulary import RecordingStatus, Source
 from tasks import tracking
 from tasks.common import ALWAYS_RUN, cache_policy
 from touch2robot import catalog, datasets
@@ -32,7 +33,7 @@ from touch2robot.settings import DataLayout
 def ingest_recording(path: str, content_sha: str, lake: str) -> dict:
     """Ingest one MCAP file (keyed by its content hash) into the lake."""
     result = ingest_file(Path(path), Path(lake))
-    if result.status == "quarantined":
+    if result.status == RecordingStatus.QUARANTINED:
         get_run_logger().warning("quarantined %s: %s", path, result.reason)
     return asdict(result)
 
@@ -55,7 +56,7 @@ def extract_human_contacts(recording: dict, config: ContactsConfig, lake: str) -
     """Human contacts + glove thresholds of one glove session."""
     rows, thresholds = human_contacts(Path(lake), recording, config)
     rid = recording["recording_id"]
-    datasets.CONTACTS.write(Path(lake), datasets.RecordingKey(rid), rows, source="human", task=recording["task"])
+    datasets.CONTACTS.write(Path(lake), datasets.RecordingKey(rid), rows, source=Source.HUMAN, task=recording["task"])
     datasets.LAKE["thresholds"].write(Path(lake), datasets.RecordingKey(rid), thresholds)
     return {"recording_id": rid, "rows": rows.num_rows, "thresholds": thresholds.to_pylist()}
 
@@ -71,7 +72,7 @@ def extract_real_contacts(
     """Real-robot contacts + TwinTac/FSR thresholds of one replay."""
     rows, thresholds = replay_contacts(Path(lake), replay, calibration_id, reference, config)
     rid = replay["recording_id"]
-    datasets.CONTACTS.write(Path(lake), datasets.RecordingKey(rid), rows, source="real", task=replay["task"])
+    datasets.CONTACTS.write(Path(lake), datasets.RecordingKey(rid), rows, source=Source.REAL, task=replay["task"])
     datasets.LAKE["thresholds"].write(Path(lake), datasets.RecordingKey(rid), thresholds)
     return {"recording_id": rid, "rows": rows.num_rows}
 
@@ -110,15 +111,15 @@ def report_ingest(data: str, profile: str, results: list[dict], contact_summarie
     layout = DataLayout.from_env(data)
     recordings = {r["recording_id"]: r for r in recording_rows(layout.lake).to_pylist()}
     statuses = [r["status"] for r in results]
-    quarantined = [r for r in results if r["status"] == "quarantined"]
+    quarantined = [r for r in results if r["status"] == RecordingStatus.QUARANTINED]
     with tracking.stage_run(layout, "ingest", f"ingest-{profile}", {"profile": profile}) as run:
         import mlflow
 
         mlflow.log_metrics(
             {
                 "files": len(results),
-                "ingested": statuses.count("ingested"),
-                "unchanged": statuses.count("unchanged"),
+                "ingested": statuses.count(RecordingStatus.INGESTED),
+                "unchanged": statuses.count(RecordingStatus.UNCHANGED),
                 "quarantined": len(quarantined),
                 "rows": sum(r["rows"] for r in results),
                 "contact_rows": sum(c["rows"] for c in contact_summaries),

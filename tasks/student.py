@@ -13,6 +13,7 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
+from schemas.vocabulary import Origin, Source
 from tasks import tracking
 from tasks.common import ALWAYS_RUN, cache_policy, checkpoint_on_stop, one_torch_thread
 from tasks.logs import TrainingProgress, both
@@ -287,12 +288,14 @@ def reconstruct(
         )
         if variant == "full":
             lake = layout.lake
-            datasets.ROLLOUTS.write(lake, datasets.RolloutsKey("student", task_name), result.rollouts, method=method)
+            datasets.ROLLOUTS.write(
+                lake, datasets.RolloutsKey(Origin.STUDENT, task_name), result.rollouts, method=method
+            )
             datasets.CONTACTS.write(
                 lake,
-                datasets.RolloutContactsKey("student", method),
+                datasets.RolloutContactsKey(Origin.STUDENT, method),
                 result.contacts,
-                source="reconstructed",
+                source=Source.RECONSTRUCTED,
                 task=task_name,
             )
             datasets.STUDENT_PREDICTIONS.write(lake, datasets.MethodTaskKey(method, task_name), result.predictions)

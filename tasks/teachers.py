@@ -10,6 +10,7 @@ from pathlib import Path
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
+from schemas.vocabulary import Method, Origin, Source
 from tasks import tracking
 from tasks.common import ALWAYS_RUN, cache_policy, checkpoint_on_stop, one_torch_thread
 from tasks.logs import TrainingProgress, both
@@ -143,7 +144,7 @@ def train_teacher(
 def _store_rollouts(layout: DataLayout, task_name: str, method: str, origin: str, rollouts, contacts) -> None:
     datasets.ROLLOUTS.write(layout.lake, datasets.RolloutsKey(origin, task_name), rollouts, method=method)
     datasets.CONTACTS.write(
-        layout.lake, datasets.RolloutContactsKey(origin, method), contacts, source="sim", task=task_name
+        layout.lake, datasets.RolloutContactsKey(origin, method), contacts, source=Source.SIM, task=task_name
     )
 
 
@@ -176,10 +177,10 @@ def teacher_rollouts(trained: dict, config: TeacherConfig, recordings: list[dict
             return policy(groups).numpy()
 
     try:
-        rows, contacts = ro.record(vec_env.env, vec_env.objective, act, method, "teacher", seed=config.seed)
+        rows, contacts = ro.record(vec_env.env, vec_env.objective, act, method, Origin.TEACHER, seed=config.seed)
     finally:
         vec_env.env.close()
-    _store_rollouts(layout, task_name, method, "teacher", rows, contacts)
+    _store_rollouts(layout, task_name, method, Origin.TEACHER, rows, contacts)
     figures = ro.summary(rows, refs, config.sim.contact_threshold_n)
     with tracking.stage_run(layout, "teachers", "", run_id=trained["mlflow_run"]):
         import mlflow
@@ -188,7 +189,7 @@ def teacher_rollouts(trained: dict, config: TeacherConfig, recordings: list[dict
     return {
         "task": task_name,
         "method": method,
-        "origin": "teacher",
+        "origin": Origin.TEACHER,
         **figures,
         "iterations": trained["iterations"],
         "mlflow_run": trained["mlflow_run"],
@@ -215,21 +216,25 @@ def kinematic_rollouts(
     env = BatchEnv(build_scene(task_name, config.sim), config.sim, len(refs.ids))
     try:
         rows, contacts = ro.record(
-            env, DemoTracking(refs, config, "touch2robot"), ro.zero_residual, "dex-retargeting", "kinematic"
+            env,
+            DemoTracking(refs, config, Method.TOUCH2ROBOT),
+            ro.zero_residual,
+            Method.DEX_RETARGETING,
+            Origin.KINEMATIC,
         )
     finally:
         env.close()
-    _store_rollouts(layout, task_name, "dex-retargeting", "kinematic", rows, contacts)
+    _store_rollouts(layout, task_name, Method.DEX_RETARGETING, Origin.KINEMATIC, rows, contacts)
     figures = ro.summary(rows, refs, config.sim.contact_threshold_n)
-    tags = {"profile": profile, "task": task_name, "method": "dex-retargeting", "origin": "kinematic"}
+    tags = {"profile": profile, "task": task_name, "method": Method.DEX_RETARGETING, "origin": Origin.KINEMATIC}
     with tracking.stage_run(layout, "teachers", f"kinematic-{task_name}", tags) as run:
         import mlflow
 
         mlflow.log_metrics({f"rollouts/{k}": v for k, v in figures.items() if v == v})
     return {
         "task": task_name,
-        "method": "dex-retargeting",
-        "origin": "kinematic",
+        "method": Method.DEX_RETARGETING,
+        "origin": Origin.KINEMATIC,
         **figures,
         "iterations": 0,
         "mlflow_run": run.info.run_id,

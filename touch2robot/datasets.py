@@ -29,6 +29,7 @@ from typing import Any, NamedTuple
 import pyarrow as pa
 
 from schemas import tables
+from schemas.vocabulary import Origin, RecordingKind, RecordingStatus, Source
 from touch2robot import lake as lake_io
 from touch2robot import scenes
 from touch2robot.ingest import recording_rows
@@ -61,7 +62,7 @@ NAME = Part(lambda: r"[A-Za-z0-9_][A-Za-z0-9_.-]*", lambda: "a name of letters, 
 CONFIG_KEY = Part(lambda: r"[0-9a-f]{12}", lambda: "12 hex digits (a configuration digest)")
 
 TASK = one_of(lambda: scenes.TASKS)
-ORIGIN = one_of(lambda: tables.ROLLOUT_ORIGINS)
+ORIGIN = one_of(lambda: tuple(Origin))
 _FIELD = re.compile(r"\{(\w+)\}")
 
 
@@ -272,7 +273,9 @@ EVALUATION_IDS = {
 
 LAKE: dict[str, LakeTable] = {
     **{name: LakeTable(name, RECORDING_ID) for name in _RECORDING_TABLES},
-    "contacts": LakeTable("contacts", RECORDING_ID, {"sim": ROLLOUT_CONTACTS_ID, "reconstructed": ROLLOUT_CONTACTS_ID}),
+    "contacts": LakeTable(
+        "contacts", RECORDING_ID, {Source.SIM: ROLLOUT_CONTACTS_ID, Source.RECONSTRUCTED: ROLLOUT_CONTACTS_ID}
+    ),
     "retargeted": LakeTable("retargeted", RECORDING_ID),
     "rollouts": LakeTable("rollouts", ROLLOUTS_ID),
     "student_dataset": LakeTable("student_dataset", TASK_ID),
@@ -294,7 +297,7 @@ REFERENCE_TABLES = ("retargeted", "object_pose", "hand_keypoints")
 
 def human_contacts(lake: Path, recording: Mapping[str, str]) -> Path:
     """The human contacts file of one glove session (a recordings row)."""
-    return CONTACTS.path(lake, RecordingKey(recording["recording_id"]), source="human", task=recording["task"])
+    return CONTACTS.path(lake, RecordingKey(recording["recording_id"]), source=Source.HUMAN, task=recording["task"])
 
 
 def reference_files(lake: Path, recording: Mapping[str, str]) -> list[Path]:
@@ -305,7 +308,7 @@ def reference_files(lake: Path, recording: Mapping[str, str]) -> list[Path]:
 
 def teacher_rollouts(lake: Path, method: str, task: str) -> Path:
     """The rollouts file of the teacher of ``method`` on ``task``."""
-    return ROLLOUTS.path(lake, RolloutsKey("teacher", task), method=method)
+    return ROLLOUTS.path(lake, RolloutsKey(Origin.TEACHER, task), method=method)
 
 
 # --------------------------------------------------------------------------- the data folder's other datasets
@@ -349,7 +352,8 @@ def glove_sessions(lake: Path) -> list[dict]:
     """The ingested glove sessions (``recordings`` rows), in file-name order (stable across runs)."""
     rows = recording_rows(Path(lake)).to_pylist()
     return sorted(
-        (r for r in rows if r["status"] == "ingested" and r["kind"] == "glove_session"), key=lambda r: r["file_name"]
+        (r for r in rows if r["status"] == RecordingStatus.INGESTED and r["kind"] == RecordingKind.GLOVE_SESSION),
+        key=lambda r: r["file_name"],
     )
 
 

@@ -25,6 +25,7 @@ import pyarrow.compute as pc
 import pyarrow.dataset as ds
 
 from schemas.tables import PARTITIONS, ROBOT_REGIONS, SCHEMAS
+from schemas.vocabulary import Source
 from touch2robot import lake as lake_io
 from touch2robot.datasets import LAKE, folder_digest
 from touch2robot.datasets import safe_file_id as file_id
@@ -56,7 +57,7 @@ __all__ = [
     "user_study_table",
 ]
 
-REFERENCE_SOURCE = "human"
+REFERENCE_SOURCE = Source.HUMAN
 """The contact source every other source is scored against (the glove's tactile preference)."""
 
 # The contacts columns the evaluation reads (`value` is not needed and is the widest column).

@@ -39,6 +39,7 @@ import numpy as np
 import pandas as pd
 
 from schemas.tables import ROBOT_REGIONS
+from schemas.vocabulary import Source
 
 if TYPE_CHECKING:
     import duckdb
@@ -337,7 +338,7 @@ def _reference_rows(contacts: pd.DataFrame, ref_source: str) -> pd.DataFrame:
     return ref
 
 
-def contact_counts_long(contacts: pd.DataFrame, *, ref_source: str = "human", eval_source: str) -> pd.DataFrame:
+def contact_counts_long(contacts: pd.DataFrame, *, ref_source: str = Source.HUMAN, eval_source: str) -> pd.DataFrame:
     """TP/FP/FN/TN per (method, task, subject, region) straight from the long ``contacts`` table.
 
     Python twin of the SQL table macro ``contact_counts(ref_source, eval_source)``; both return
@@ -568,7 +569,7 @@ def onset_error_ms_long(
     time_map: pd.DataFrame,
     *,
     eval_source: str,
-    ref_source: str = "human",
+    ref_source: str = Source.HUMAN,
     on_missing_time_map: Literal["raise", "use_t_ref"] = "raise",
 ) -> OnsetErrors:
     """:func:`onset_error_ms` straight from the long ``contacts`` and ``time_map`` tables.

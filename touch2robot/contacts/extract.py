@@ -11,6 +11,7 @@ import pyarrow.parquet as pq
 
 from schemas.glove import TAXEL_REGION
 from schemas.tables import HUMAN_REGIONS, ROBOT_REGIONS
+from schemas.vocabulary import Source
 from touch2robot import lake as lake_io
 from touch2robot.contacts import ContactsConfig, glove_contacts, long_rows, real_contacts, twintac_thresholds
 
@@ -36,8 +37,8 @@ def human_contacts(lake: Path, recording: dict, config: ContactsConfig) -> tuple
     contact, resp, thr = glove_contacts(t, _matrix(taxels, "values"), config)
     keep = [HUMAN_REGIONS.index(r) for r in ROBOT_REGIONS]
     rows = long_rows(
-        source="human",
-        method="human",
+        source=Source.HUMAN,
+        method=Source.HUMAN,  # the human is the method of its own contacts
         task=recording["task"],
         subject=recording["subject"],
         sequence_id=rid,
@@ -85,7 +86,7 @@ def replay_contacts(
     tt_values = tt_raw - mean
     tip_value = np.stack([tt_values[:, 4 * k : 4 * k + 4].max(axis=1) for k in range(4)], 1)
     common = dict(
-        source="real",
+        source=Source.REAL,
         method=replay["method"],
         task=replay["task"],
         subject=replay["subject"],

@@ -14,6 +14,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from schemas.vocabulary import RecordingKind, RecordingStatus
 from touch2robot import lake as lake_io
 from touch2robot.ingest.reader import DecodedRecording, RecordingError, content_id, counts_json, read_recording
 from touch2robot.ingest.tables import stream_tables
@@ -34,7 +35,7 @@ __all__ = [
 class IngestResult:
     recording_id: str
     path: str
-    status: str  # "ingested" | "quarantined" | "unchanged"
+    status: RecordingStatus
     reason: str
     kind: str
     rows: int
@@ -78,19 +79,24 @@ def ingest_file(path: Path, lake: Path) -> IngestResult:
         except OSError:  # unreadable: its own quarantine row, keyed by where it is
             data, rid = b"", content_id(f"unreadable:{path}".encode())
         lake_io.remove_id(lake, rid)  # a bad file never leaves rows behind
-        lake_io.write_rows(lake, "recordings", rid, _row(path, rid, len(data), "quarantined", e.reason, None))
-        return IngestResult(rid, str(path), "quarantined", e.reason, "", 0)
+        lake_io.write_rows(
+            lake, "recordings", rid, _row(path, rid, len(data), RecordingStatus.QUARANTINED, e.reason, None)
+        )
+        return IngestResult(rid, str(path), RecordingStatus.QUARANTINED, e.reason, "", 0)
     marker = lake_io.file_path(lake, "recordings", rec.recording_id)
-    if marker.exists() and pq.read_table(marker, columns=["status"])["status"][0].as_py() == "ingested":
-        return IngestResult(rec.recording_id, str(path), "unchanged", "", rec.kind, 0)
+    if marker.exists() and pq.read_table(marker, columns=["status"])["status"][0].as_py() == RecordingStatus.INGESTED:
+        return IngestResult(rec.recording_id, str(path), RecordingStatus.UNCHANGED, "", rec.kind, 0)
     rows = 0
     for table, rows_table in stream_tables(rec).items():
         lake_io.write_rows(lake, table, rec.recording_id, rows_table)
         rows += rows_table.num_rows
     lake_io.write_rows(
-        lake, "recordings", rec.recording_id, _row(path, rec.recording_id, rec.size_bytes, "ingested", "", rec)
+        lake,
+        "recordings",
+        rec.recording_id,
+        _row(path, rec.recording_id, rec.size_bytes, RecordingStatus.INGESTED, "", rec),
     )
-    return IngestResult(rec.recording_id, str(path), "ingested", "", rec.kind, rows)
+    return IngestResult(rec.recording_id, str(path), RecordingStatus.INGESTED, "", rec.kind, rows)
 
 
 def recording_rows(lake: Path) -> pa.Table:
@@ -127,16 +133,16 @@ def link_replays(rows: list[dict]) -> tuple[list[dict], list[ReplayLink], list[s
     calibration and reference; returns (gloves, links, problems) where a replay whose
     calibration is missing is left out with a problem line (its reference may be absent:
     then its contacts have no reference_id)."""
-    ok = [r for r in rows if r["status"] == "ingested"]
+    ok = [r for r in rows if r["status"] == RecordingStatus.INGESTED]
     by_place = {(str(Path(r["path"]).parent), r["file_name"]): r for r in ok}
-    gloves = [r for r in ok if r["kind"] == "glove_session"]
+    gloves = [r for r in ok if r["kind"] == RecordingKind.GLOVE_SESSION]
     links, problems = [], []
     for r in ok:
-        if r["kind"] != "robot_replay":
+        if r["kind"] != RecordingKind.ROBOT_REPLAY:
             continue
         folder = str(Path(r["path"]).parent)
         calib = by_place.get((folder, r["calibration_recording"]))
-        if calib is None or calib["kind"] != "robot_calibration":
+        if calib is None or calib["kind"] != RecordingKind.ROBOT_CALIBRATION:
             problems.append(
                 f"{r['file_name']}: calibration {r['calibration_recording']!r} is not ingested; no real contacts"
             )

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from schemas.vocabulary import Origin
+
 # The datasets hold images, not video, so no decoder is needed; naming one stops LeRobot probing
 # torchcodec, which fails without system FFmpeg libraries and logs a traceback per FFmpeg version.
 VIDEO_BACKEND = "pyav"
@@ -24,7 +26,7 @@ class PolicyConfig(BaseModel):
         default=None, description="data-collection methods to compare; None = every method with rollouts"
     )
     origins: tuple[str, ...] = Field(
-        default=("student", "teacher", "kinematic"),
+        default=(Origin.STUDENT, Origin.TEACHER, Origin.KINEMATIC),
         min_length=1,
         description="rollout origins a method's dataset may come from, most preferred first "
         "(e.g. [teacher, kinematic] compares every method on its teacher's rollouts)",

@@ -32,7 +32,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from schemas.tables import ROBOT_REGIONS, ROLLOUT_ORIGINS
+from schemas.tables import ROBOT_REGIONS
+from schemas.vocabulary import Origin
 from touch2robot import scenes
 from touch2robot.datasets import ROLLOUTS, lerobot_repo_id
 from touch2robot.leap import description as hd
@@ -51,8 +52,8 @@ WRIST_NAMES = ("wrist_px", "wrist_py", "wrist_pz", "wrist_qw", "wrist_qx", "wris
 STATE_NAMES = (*hd.JOINT_NAMES, *WRIST_NAMES)
 ACTION_NAMES = (*(f"{j}_target" for j in hd.JOINT_NAMES), *(f"{w}_cmd" for w in WRIST_NAMES))
 # which rollouts of a task x method become its demonstrations, best first
-ORIGIN_PREFERENCE = ("student", "teacher", "kinematic")
-assert set(ORIGIN_PREFERENCE) == set(ROLLOUT_ORIGINS)
+ORIGIN_PREFERENCE = (Origin.STUDENT, Origin.TEACHER, Origin.KINEMATIC)
+assert set(ORIGIN_PREFERENCE) == set(Origin)
 
 
 class RolloutError(ValueError):

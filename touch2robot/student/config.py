@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from schemas.vocabulary import Method
+
 
 class _Frozen(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -36,7 +38,7 @@ class StudentConfig(_Frozen):
 
     # --- augmentation (paper: "a total of 400" training rollouts; read as 400 over all tasks,
     # balanced: augmented_rollouts / len(tasks) per task)
-    teacher_method: str = Field(default="touch2robot", description="whose teacher rollouts are distilled")
+    teacher_method: str = Field(default=Method.TOUCH2ROBOT, description="whose teacher rollouts are distilled")
     augmented_rollouts: int = Field(
         default=400, ge=1, description="training rollouts in total, balanced over the tasks"
     )

@@ -17,6 +17,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from schemas.tables import ROBOT_REGIONS, SCHEMAS
+from schemas.vocabulary import Origin, Source
 from touch2robot.metrics import contact_scores
 from touch2robot.sim.env import BatchEnv
 from touch2robot.sim.scene import build_scene
@@ -77,9 +78,9 @@ def execute(
         raise ValueError(
             f"{len(outputs)} student outputs for {len(objective.refs.ids)} demonstrations and {env.n} env copies"
         )
-    rollouts, contacts = record(env, objective, student_policy(env, objective, outputs, config), method, "student")
+    rollouts, contacts = record(env, objective, student_policy(env, objective, outputs, config), method, Origin.STUDENT)
     contacts = contacts.set_column(
-        contacts.schema.get_field_index("source"), "source", pa.array(["reconstructed"] * len(contacts))
+        contacts.schema.get_field_index("source"), "source", pa.array([Source.RECONSTRUCTED] * len(contacts))
     )
     return rollouts, contacts
 
@@ -103,7 +104,7 @@ def prediction_rows(
         tables.append(
             pa.table(
                 {
-                    "sequence_id": pa.array([rollout_id("student", method, task, i)] * (n * k)),
+                    "sequence_id": pa.array([rollout_id(Origin.STUDENT, method, task, i)] * (n * k)),
                     "method": pa.array([method] * (n * k)),
                     "task": pa.array([task] * (n * k)),
                     "reference_id": pa.array([rid] * (n * k)),

@@ -16,6 +16,7 @@ import pyarrow.parquet as pq
 from schemas.glove import GLOVE_JOINT_NAMES, region_taxels
 from schemas.messages import LEAP_JOINT_NAMES
 from schemas.tables import HUMAN_REGIONS, ROBOT_REGIONS
+from schemas.vocabulary import Method, RecordingKind
 from touch2robot import geometry, scenes
 from touch2robot.recording import cdr
 from touch2robot.recording.writer import RecordingWriter
@@ -44,9 +45,9 @@ class RecordingJob:
     def stem(self) -> str:
         base = f"{self.task}_s{self.subject:02d}_d{self.demo:02d}"
         return {
-            "glove_session": f"{base}_glove",
-            "robot_replay": f"{base}_{self.method}_replay",
-            "robot_calibration": f"{base}_{self.method}_calib",
+            RecordingKind.GLOVE_SESSION: f"{base}_glove",
+            RecordingKind.ROBOT_REPLAY: f"{base}_{self.method}_replay",
+            RecordingKind.ROBOT_CALIBRATION: f"{base}_{self.method}_calib",
         }[self.kind]
 
     @property
@@ -60,12 +61,12 @@ def plan(config: SynthConfig) -> list[RecordingJob]:
     for task in config.tasks:
         for subject in range(1, config.subjects + 1):
             for demo in range(1, config.demos_per_subject + 1):
-                jobs.append(RecordingJob("glove_session", task, subject, demo))
+                jobs.append(RecordingJob(RecordingKind.GLOVE_SESSION, task, subject, demo))
         glove = [j for j in jobs if j.task == task]
         for j in glove[: config.replays_per_task]:
             for method in config.replay_methods:
-                jobs.append(RecordingJob("robot_calibration", task, j.subject, j.demo, method))
-                jobs.append(RecordingJob("robot_replay", task, j.subject, j.demo, method))
+                jobs.append(RecordingJob(RecordingKind.ROBOT_CALIBRATION, task, j.subject, j.demo, method))
+                jobs.append(RecordingJob(RecordingKind.ROBOT_REPLAY, task, j.subject, j.demo, method))
     return jobs
 
 
@@ -119,9 +120,11 @@ def _write_groundtruth(
 
 def write_recording(config: SynthConfig, job: RecordingJob, recordings: Path, groundtruth: Path) -> Path:
     """Write one recording (and its ground truth); returns the MCAP path."""
-    writer = {"glove_session": _write_glove, "robot_replay": _write_replay, "robot_calibration": _write_calibration}[
-        job.kind
-    ]
+    writer = {
+        RecordingKind.GLOVE_SESSION: _write_glove,
+        RecordingKind.ROBOT_REPLAY: _write_replay,
+        RecordingKind.ROBOT_CALIBRATION: _write_calibration,
+    }[job.kind]
     path = recordings / job.file_name
     writer(config, job, path, groundtruth / f"{job.stem}.parquet")
     return path
@@ -153,7 +156,7 @@ def _write_glove(config: SynthConfig, job: RecordingJob, path: Path, gt_path: Pa
         "demo": str(job.demo),
         "rig": "simulated-demonstrator",
     }
-    with RecordingWriter(path, "glove_session", metadata) as w:
+    with RecordingWriter(path, RecordingKind.GLOVE_SESSION, metadata) as w:
         # interleave streams in time order, as a live recorder would
         events = sorted(
             [(t, 0, i) for i, t in enumerate(t_tax)]
@@ -213,7 +216,7 @@ def _write_replay(config: SynthConfig, job: RecordingJob, path: Path, gt_path: P
 
     # the robot reproduces the human contacts, late by a per-region lag; the kinematic
     # baseline misses some regions entirely
-    faithful = job.method != "dex-retargeting"
+    faithful = job.method != Method.DEX_RETARGETING
     lag = rng.normal(0.04, 0.03, 8) if faithful else rng.normal(0.12, 0.06, 8)
     kept = np.ones(8) if faithful else (rng.uniform(size=8) > 0.35).astype(float)
     scale = rng.uniform(0.6, 1.2, 8)
@@ -241,8 +244,8 @@ def _write_replay(config: SynthConfig, job: RecordingJob, path: Path, gt_path: P
     vel = np.gradient(pos, t_js, axis=0)
     effort = 3.0 * (traj.sample(t_ref(t_js)).joints[:, _HUMAN_FOR_LEAP] - pos)
     t0_ns = EPOCH_NS + 10**15 + _start_offset_s(job) * 10**9
-    glove = RecordingJob("glove_session", job.task, job.subject, job.demo)
-    calib = RecordingJob("robot_calibration", job.task, job.subject, job.demo, job.method)
+    glove = RecordingJob(RecordingKind.GLOVE_SESSION, job.task, job.subject, job.demo)
+    calib = RecordingJob(RecordingKind.ROBOT_CALIBRATION, job.task, job.subject, job.demo, job.method)
     metadata = {
         "task": job.task,
         "subject": f"s{job.subject:02d}",
@@ -251,7 +254,7 @@ def _write_replay(config: SynthConfig, job: RecordingJob, path: Path, gt_path: P
         "calibration_recording": calib.file_name,
         "rig": "simulated-demonstrator",
     }
-    with RecordingWriter(path, "robot_replay", metadata) as w:
+    with RecordingWriter(path, RecordingKind.ROBOT_REPLAY, metadata) as w:
         events = sorted(
             [(t, 0, i) for i, t in enumerate(t_tt)]
             + [(t, 1, i) for i, t in enumerate(t_fsr)]
@@ -285,7 +288,9 @@ def _write_calibration(config: SynthConfig, job: RecordingJob, path: Path, gt_pa
     t = _stamps(config.calibration_s, 100.0, rng)
     raw = twintac.read(np.zeros((len(t), 4)))
     t0_ns = EPOCH_NS + 2 * 10**15 + _start_offset_s(job) * 10**9
-    with RecordingWriter(path, "robot_calibration", {"rig": "simulated-demonstrator", "sensor": "twintac"}) as w:
+    with RecordingWriter(
+        path, RecordingKind.ROBOT_CALIBRATION, {"rig": "simulated-demonstrator", "sensor": "twintac"}
+    ) as w:
         for i, ti in enumerate(t):
             s = t0_ns + round(ti * 1e9)
             w.write("/twintac/raw", s, cdr.encode_tactile(s, "twintac", raw[i]))

@@ -11,6 +11,7 @@ from typing import Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from schemas.vocabulary import TEACHER_METHODS, Method
 from touch2robot.scenes import TASKS
 from touch2robot.sim.config import SimConfig
 
@@ -101,9 +102,9 @@ class MethodConfig(_Frozen):
 def default_methods() -> dict[str, MethodConfig]:
     """The three teacher variants. Only the contact signal and each method's own mechanism differ."""
     return {
-        "touch2robot": MethodConfig(rewards=RewardWeights(tactile=1.0)),
-        "contrack": MethodConfig(rewards=RewardWeights(contact=1.0), contrack=ContrackConfig(enabled=True)),
-        "dexmachina": MethodConfig(rewards=RewardWeights(contact=0.5), assistance=AssistanceConfig(enabled=True)),
+        Method.TOUCH2ROBOT: MethodConfig(rewards=RewardWeights(tactile=1.0)),
+        Method.CONTRACK: MethodConfig(rewards=RewardWeights(contact=1.0), contrack=ContrackConfig(enabled=True)),
+        Method.DEXMACHINA: MethodConfig(rewards=RewardWeights(contact=0.5), assistance=AssistanceConfig(enabled=True)),
     }
 
 
@@ -111,7 +112,7 @@ class TeacherConfig(_Frozen):
     """Teachers per task and method, and the rollouts they produce."""
 
     tasks: tuple[str, ...] = TASKS
-    methods: tuple[TeacherMethod, ...] = ("touch2robot", "contrack", "dexmachina")
+    methods: tuple[TeacherMethod, ...] = TEACHER_METHODS
     sim: SimConfig = SimConfig()
     ppo: PPOConfig = PPOConfig()
     variants: dict[str, MethodConfig] = Field(default_factory=default_methods)

@@ -18,6 +18,7 @@ import pyarrow.parquet as pq
 
 from schemas.glove import KEYPOINT_NAMES
 from schemas.tables import ROBOT_REGIONS
+from schemas.vocabulary import Source
 from touch2robot import lake as lake_io
 from touch2robot import scenes
 from touch2robot.geometry import body_sdf, inverse_transform_points
@@ -173,7 +174,7 @@ def load_reference(
     ret = _read(lake, "retargeted", rid)
     obj = _read(lake, "object_pose", rid)
     kp = _read(lake, "hand_keypoints", rid)
-    human = _read(lake, "contacts", rid, {"source": "human", "task": task})
+    human = _read(lake, "contacts", rid, {"source": Source.HUMAN, "task": task})
     t_ret, t_obj, t_kp = ret["t"].to_numpy(), obj["t"].to_numpy(), kp["t"].to_numpy()
     t_con = np.unique(human["t"].to_numpy())
     for name, ts in (("retargeted", t_ret), ("object_pose", t_obj), ("hand_keypoints", t_kp), ("contacts", t_con)):

@@ -15,6 +15,7 @@ import numpy as np
 import pyarrow as pa
 
 from schemas.tables import ROBOT_REGIONS, SCHEMAS
+from schemas.vocabulary import Source
 from touch2robot.contacts import long_rows
 from touch2robot.metrics import contact_scores
 from touch2robot.sim.env import BatchEnv
@@ -145,7 +146,7 @@ def _tables(
         )
         contact_tables.append(
             long_rows(
-                source="sim",
+                source=Source.SIM,
                 method=method,
                 task=task,
                 subject=refs.subjects[d],
