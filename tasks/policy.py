@@ -21,6 +21,7 @@ from touch2robot.settings import DataLayout
 from touch2robot.sim.config import SimConfig
 
 POLICY_MODULES = (
+    "touch2robot.geometry",
     "touch2robot.policy",
     "touch2robot.sim",
     "touch2robot.scenes",

@@ -23,6 +23,7 @@ from touch2robot.student.config import StudentConfig
 from touch2robot.teachers.config import TeacherConfig
 
 STUDENT_MODULES = (
+    "touch2robot.geometry",
     "touch2robot.student",
     "touch2robot.teachers",
     "touch2robot.sim",

@@ -19,6 +19,7 @@ from touch2robot.settings import DataLayout
 from touch2robot.teachers.config import TeacherConfig
 
 TEACHER_MODULES = (
+    "touch2robot.geometry",
     "touch2robot.teachers",
     "touch2robot.sim",
     "touch2robot.leap",
