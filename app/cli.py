@@ -8,6 +8,8 @@ from __future__ import annotations
 import os
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated
@@ -47,10 +49,28 @@ def _options(
 
 
 def _layout(data: Path | None):
+    """The data folder, checked before any compute: it must be (or become) a writable folder."""
     from app.environment import configure
     from touch2robot.settings import DataLayout
 
-    return configure(DataLayout.from_env(data))
+    layout = DataLayout.from_env(data)
+    problem = _unusable_folder(layout.root)
+    if problem:
+        console.print(f"[red]--data {layout.root}:[/red] {problem}", highlight=False)
+        raise typer.Exit(2)
+    return configure(layout)
+
+
+def _unusable_folder(root: Path) -> str | None:
+    if root.exists() and not root.is_dir():
+        return "not a folder"
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as e:  # a file where a parent folder should be, no permission, ...
+        return f"cannot create the folder ({e.strerror})"
+    if not os.access(root, os.W_OK | os.X_OK):
+        return "the folder is not writable"
+    return None
 
 
 def _run_flow(entrypoint: str, **parameters: object) -> object:
@@ -76,7 +96,7 @@ def _run_flow(entrypoint: str, **parameters: object) -> object:
     os.environ.update({logs.LOG_FILE_ENV: str(log_file), logs.VERBOSE_ENV: "1" if session.verbose else "0"})
     os.environ.setdefault("MLFLOW_CONFIGURE_LOGGING", "false")
     console.print(f"[dim]log: {log_file}[/]", highlight=False)
-    with stop_on_termination():
+    with _writer_lock(Path(str(parameters["data"]))), stop_on_termination():
         api = None if os.environ.get("PREFECT_API_URL") else PrefectApi(dict(os.environ)).start()
         from prefect.settings import PREFECT_API_URL, get_current_settings, temporary_settings
 
@@ -105,6 +125,20 @@ def _run_flow(entrypoint: str, **parameters: object) -> object:
             refresh_global_settings_context()
             with temporary_settings({PREFECT_API_URL: url}):
                 return flow(**parameters)
+
+
+@contextmanager
+def _writer_lock(root: Path) -> Iterator[None]:
+    """One writing command per data folder: a second one would resume from the first's half-written
+    checkpoints (touch2robot.folder_lock)."""
+    from touch2robot.folder_lock import DataFolderBusy, hold_data_folder
+
+    try:
+        with hold_data_folder(root, f"touch2robot {session.command}"):
+            yield
+    except DataFolderBusy as e:  # raised only on entry: nobody else raises it
+        console.print(f"[red]busy:[/red] {e}", highlight=False)
+        raise typer.Exit(1) from None
 
 
 def _check_profile(profile: str) -> None:
@@ -144,7 +178,10 @@ def synth(profile: ProfileOpt = "smoke", data: DataOpt = None) -> None:
 def ingest(
     profile: ProfileOpt = "smoke",
     data: DataOpt = None,
-    folder: Annotated[Path | None, typer.Option(help="folder of MCAP files (default <data>/recordings)")] = None,
+    folder: Annotated[
+        Path | None,
+        typer.Option(help="folder of MCAP files (default <data>/recordings)", exists=True, file_okay=False),
+    ] = None,
 ) -> None:
     """Ingest MCAP recordings into the Parquet lake and DuckDB catalog (Prefect flow
     `ingest`, cached per file content): bad files are quarantined with a reason."""
@@ -220,7 +257,8 @@ def evaluate(
     profile: ProfileOpt = "smoke",
     data: DataOpt = None,
     ratings: Annotated[
-        Path | None, typer.Option(help="user-study ratings CSV or folder (default <data>/recordings/user_study)")
+        Path | None,
+        typer.Option(help="user-study ratings CSV or folder (default <data>/recordings/user_study)", exists=True),
     ] = None,
 ) -> None:
     """Score every contact source against the human preference (precision/recall/F1/FPR,

@@ -1,0 +1,46 @@
+"""The command checks what it is given before any compute: a data folder that cannot be one, a missing
+input path, and a data folder another writing command holds are one-line errors, not tracebacks or a
+silent exit 0."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from app.cli import app
+from touch2robot.folder_lock import hold_data_folder
+
+runner = CliRunner(env={"COLUMNS": "400"})
+
+
+def _said(result) -> str:
+    return " ".join(result.output.split())
+
+
+@pytest.mark.parametrize("where", ["file", "under_file", "dev_null"])
+def test_a_data_path_that_cannot_be_a_folder_is_refused(tmp_path: Path, where: str) -> None:
+    (tmp_path / "file").write_text("x")
+    data = {"file": tmp_path / "file", "under_file": tmp_path / "file" / "sub", "dev_null": Path(os.devnull)}[where]
+    result = runner.invoke(app, ["retarget", "--data", str(data)])
+    assert result.exit_code == 2
+    said = _said(result)
+    assert f"--data {data}:" in said and "Traceback" not in said
+    assert ("not a folder" in said) or ("cannot create the folder" in said)
+
+
+@pytest.mark.parametrize(("command", "option"), [("ingest", "--folder"), ("evaluate", "--ratings")])
+def test_a_missing_input_path_is_an_error(tmp_path: Path, command: str, option: str) -> None:
+    result = runner.invoke(app, [command, "--data", str(tmp_path / "data"), option, str(tmp_path / "missing")])
+    assert result.exit_code == 2
+    assert "does not exist" in _said(result)
+
+
+def test_a_second_writing_command_on_a_held_folder_refuses_naming_the_holder(tmp_path: Path) -> None:
+    data = tmp_path / "data"
+    with hold_data_folder(data, "touch2robot run"):
+        result = runner.invoke(app, ["retarget", "--data", str(data)])
+    assert result.exit_code == 1
+    assert f"is in use by pid {os.getpid()} (touch2robot run" in _said(result)
