@@ -52,9 +52,6 @@ def ingest(profile: str = "smoke", data: str | None = None, folder: str | None =
     summaries = [f.result() for f in human] + [f.result() for f in real]
     refresh_catalog(str(layout.root))
     report = report_ingest(str(layout.root), profile, results, summaries)
-    counts = {
-        s: sum(r["status"] == s for r in results)
-        for s in (RecordingStatus.INGESTED, RecordingStatus.UNCHANGED, RecordingStatus.QUARANTINED)
-    }
+    counts = {status.value: sum(r["status"] == status for r in results) for status in RecordingStatus}
     print(f"ingest: {counts} -> {layout.catalog}")
     return {**counts, "skipped": len(scan.skipped), "files": len(results), "report": report}
