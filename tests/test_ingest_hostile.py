@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import struct
 import threading
 from pathlib import Path
 
@@ -360,3 +361,29 @@ def test_byte_mutations_of_a_real_recording_never_crash_and_leave_nothing_of_a_b
         assert np.isfinite(values).all() and (values >= plaus.TACTILE_COUNTS.low).all()
         assert (values <= plaus.TACTILE_COUNTS.high).all()
     shutil.rmtree(work)
+
+
+# --- a bit flip in the metadata --------------------------------------------------------------------------------
+
+
+def _metadata_record(data: bytes) -> tuple[int, int]:
+    """(start, end) of the first Metadata record in the data section (opcode 0x0C)."""
+    pos = 8  # after the magic
+    while pos < len(data):
+        opcode, length = data[pos], struct.unpack_from("<Q", data, pos + 1)[0]
+        if opcode == 0x0C:
+            return pos, pos + 9 + length
+        pos += 9 + length
+    raise AssertionError("no metadata record")
+
+
+def test_a_bit_flip_in_the_metadata_is_caught_by_the_data_crc(tmp_path: Path) -> None:
+    """The subject 's09' flipped to 'r09' is a plausible name: only the data-section CRC can tell."""
+    path = _glove_session(tmp_path / "g.mcap")
+    data = bytearray(path.read_bytes())
+    start, end = _metadata_record(bytes(data))
+    at = data.index(b"s09", start, end)
+    data[at] ^= ord("s") ^ ord("r")
+    (tmp_path / "flipped.mcap").write_bytes(bytes(data))
+    result = ingest_file(tmp_path / "flipped.mcap", tmp_path / "lake")
+    assert result.status == "quarantined" and "crc validation failed in DataEnd" in result.reason, result.reason

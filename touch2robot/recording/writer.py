@@ -40,7 +40,10 @@ class RecordingWriter:
     def __enter__(self) -> RecordingWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._file = open(self._tmp, "wb")
-        self._writer = Writer(self._file, chunk_size=self._chunk_size, compression=CompressionType.ZSTD)
+        # the data-section CRC covers the metadata record too: a flipped bit in it is caught at ingest
+        self._writer = Writer(
+            self._file, chunk_size=self._chunk_size, compression=CompressionType.ZSTD, enable_data_crcs=True
+        )
         self._writer.start(profile="ros2", library="touch2robot")
         schema_ids: dict[str, int] = {}
         for topic in TOPICS_BY_KIND[self.kind]:
