@@ -14,6 +14,7 @@ from prefect.artifacts import create_markdown_artifact, create_table_artifact
 from tasks import tracking
 from tasks.common import ALWAYS_RUN, cache_policy
 from touch2robot import datasets
+from touch2robot import lake as lake_io
 from touch2robot.retarget import RetargetConfig
 from touch2robot.settings import DataLayout
 
@@ -70,7 +71,7 @@ def retarget_recording(recording: dict, config: RetargetConfig, data: str, profi
         motion = load_hand_motion(layout.lake, rid, config)
     except HandMotionError as e:
         get_run_logger().warning("not retargeted: %s", e)
-        datasets.RETARGETED.path(layout.lake, datasets.RecordingKey(rid)).unlink(missing_ok=True)
+        lake_io.remove(datasets.RETARGETED.path(layout.lake, datasets.RecordingKey(rid)))
         return {**base, "error": str(e)}
     retargeter = Retargeter(config)
     result = retarget_motion(motion, config, retargeter)

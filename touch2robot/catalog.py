@@ -121,9 +121,11 @@ def _retry_while_locked[T](action: Callable[[], T], timeout_s: float = 60.0) -> 
 
 
 def refresh(layout: DataLayout) -> list[str]:
-    """(Re)create every table view with its comments and the SQL macros; returns the view names."""
+    """(Re)create every table view with its comments and the SQL macros; returns the view names.
+    Refuses (LakeFileChanged, naming them) while lake files differ from what their stages wrote."""
     from touch2robot.metrics import register_contact_macros
 
+    lake_io.check_all(layout.lake)
     layout.root.mkdir(parents=True, exist_ok=True)
     con = _retry_while_locked(lambda: duckdb.connect(str(layout.catalog)))
     try:

@@ -311,7 +311,7 @@ def replace_table(lake: Path, table: str, rows: pd.DataFrame, keys: Sequence[str
     keep = {f"{fid}.parquet" for fid in written}
     for path in lake_io.files(lake, table):
         if path.name not in keep:
-            path.unlink()
+            lake_io.remove(path)
     return sorted(written)
 
 

@@ -2,10 +2,14 @@
 or rollout (named by its id), hive-style partition folders where ``schemas.tables.PARTITIONS``
 says so. Every file is written to a temporary name and renamed into place, so a reader
 or a crash never sees half a file, and re-writing the same id replaces it (idempotent).
+Beside every file lies its producer's digest (``<id>.parquet.sha256``, written after the file):
+a file changed by anything but this module (a stray ``COPY ... TO``, a disk fault, a half-finished
+copy) no longer matches it, and ingest and the catalog refresh find it with ``check``.
 Which id a file has, and who writes it, is the catalog's to say: ``touch2robot.datasets``."""
 
 from __future__ import annotations
 
+import hashlib
 import os
 import uuid
 from pathlib import Path
@@ -15,9 +19,34 @@ import pyarrow.parquet as pq
 
 from schemas.tables import PARTITIONS, SCHEMAS
 
+DIGEST_SUFFIX = ".sha256"
+
+
+class LakeFileChanged(RuntimeError):
+    """Lake files that no longer match the digest their producer wrote."""
+
+
+def digest_path(path: Path) -> Path:
+    return path.with_name(path.name + DIGEST_SUFFIX)
+
+
+def _sha256(path: Path) -> str:
+    with open(path, "rb") as f:
+        return hashlib.file_digest(f, "sha256").hexdigest()
+
+
+def _replace_text(text: str, path: Path) -> None:
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
 
 def write_atomic(table: pa.Table, path: Path) -> Path:
-    """Write a Parquet file via a temporary sibling and an atomic rename."""
+    """Write a Parquet file via a temporary sibling and an atomic rename, then its digest. A crash
+    between the two renames leaves a file whose digest does not match: ``check`` reports it."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
     try:
@@ -25,10 +54,43 @@ def write_atomic(table: pa.Table, path: Path) -> Path:
         # and cost a third of the write time
         strings = [f.name for f in table.schema if pa.types.is_string(f.type)]
         pq.write_table(table, tmp, compression="zstd", compression_level=1, use_dictionary=strings)
+        digest = _sha256(tmp)
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+    _replace_text(digest, digest_path(path))
     return path
+
+
+def check(path: Path) -> str | None:
+    """Why ``path`` cannot be trusted (missing, no digest, changed since written), or None."""
+    if not path.is_file():
+        return "missing"
+    try:
+        written = digest_path(path).read_text().strip()
+    except OSError:
+        return "no producer digest beside it (not written by a touch2robot stage)"
+    return None if _sha256(path) == written else "changed since its stage wrote it"
+
+
+def check_all(lake: Path) -> None:
+    """Raise LakeFileChanged naming every lake file that does not match its producer's digest."""
+    bad = []
+    for path in sorted(lake.rglob("*.parquet")):
+        why = None if path.name.startswith(".") else check(path)
+        if why:
+            bad.append(f"{path.relative_to(lake)}: {why}")
+    if bad:
+        raise LakeFileChanged(
+            f"{len(bad)} lake file(s) in {lake} changed outside their stage; re-run the stage that writes them "
+            f"(`touch2robot ingest` re-ingests recordings) or delete them: " + "; ".join(bad[:10])
+        )
+
+
+def remove(path: Path) -> None:
+    """Delete a lake file and its digest."""
+    path.unlink(missing_ok=True)
+    digest_path(path).unlink(missing_ok=True)
 
 
 def file_path(lake: Path, table: str, file_id: str, partition: dict[str, str] | None = None) -> Path:
@@ -68,6 +130,6 @@ def remove_id(lake: Path, file_id: str) -> int:
     """Delete every file of one recording/rollout id across all tables; returns the count."""
     removed = 0
     for p in lake.rglob(f"{file_id}.parquet"):
-        p.unlink()
+        remove(p)
         removed += 1
     return removed

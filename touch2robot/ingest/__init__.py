@@ -14,6 +14,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from schemas.messages import TOPICS_BY_KIND
 from schemas.vocabulary import RecordingKind, RecordingStatus
 from touch2robot import lake as lake_io
 from touch2robot.ingest.reader import DecodedRecording, RecordingError, content_id, counts_json, read_recording
@@ -84,7 +85,7 @@ def ingest_file(path: Path, lake: Path) -> IngestResult:
         )
         return IngestResult(rid, str(path), RecordingStatus.QUARANTINED, e.reason, "", 0)
     marker = lake_io.file_path(lake, "recordings", rec.recording_id)
-    if marker.exists() and pq.read_table(marker, columns=["status"])["status"][0].as_py() == RecordingStatus.INGESTED:
+    if _stored_whole(lake, rec, marker):
         return IngestResult(rec.recording_id, str(path), RecordingStatus.UNCHANGED, "", rec.kind, 0)
     rows = 0
     for table, rows_table in stream_tables(rec).items():
@@ -97,6 +98,18 @@ def ingest_file(path: Path, lake: Path) -> IngestResult:
         _row(path, rec.recording_id, rec.size_bytes, RecordingStatus.INGESTED, "", rec),
     )
     return IngestResult(rec.recording_id, str(path), RecordingStatus.INGESTED, "", rec.kind, rows)
+
+
+def _stored_whole(lake: Path, rec: DecodedRecording, marker: Path) -> bool:
+    """The recording was ingested and every file of it still matches what ingest wrote (a file
+    changed since, say overwritten with zeros, makes it ingested again)."""
+    if (
+        lake_io.check(marker)
+        or pq.read_table(marker, columns=["status"])["status"][0].as_py() != RecordingStatus.INGESTED
+    ):
+        return False
+    streams = {topic.table for topic in TOPICS_BY_KIND[rec.kind]}
+    return not any(lake_io.check(lake_io.file_path(lake, table, rec.recording_id)) for table in streams)
 
 
 def recording_rows(lake: Path) -> pa.Table:
