@@ -413,12 +413,13 @@ def ui(
 
     layout = _layout(data)
     from app.local_server import StopRequest, answers, spawn_owned, stop_group
-    from tasks.tracking import local_uri, tracking_uri
+    from tasks.tracking import local_uri, relocate_store, tracking_uri
 
     # name: (command, health URL, UI URL); a server the user points at is theirs to run
     servers: dict[str, tuple[list[str], str, str]] = {}
     uri = tracking_uri(layout)
     if uri == local_uri(layout):
+        relocate_store(layout)  # a copied data folder's runs show their artefacts from this copy
         # one web worker and no GenAI job runner (by default 4 workers and 8 job processes)
         command = [
             sys.executable,

@@ -8,8 +8,9 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import sqlite3
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager, nullcontext
+from contextlib import closing, contextmanager, nullcontext
 from pathlib import Path
 
 import mlflow
@@ -46,7 +47,44 @@ def experiment(layout: DataLayout, stage: str) -> str:
         os.environ.pop("MLFLOW_TRACKING_URI", None)
     name = f"touch2robot/{stage}"
     with _store_lock(layout) if uri.startswith("sqlite:") else nullcontext():
+        if uri == local_uri(layout):
+            relocate_store(layout)
         return _get_or_create(layout, name, stage, uri)
+
+
+# (table, column) of the local store that hold artefact locations
+_LOCATION_COLUMNS = (
+    ("experiments", "artifact_location"),
+    ("runs", "artifact_uri"),
+    ("logged_models", "artifact_location"),
+    ("model_versions", "storage_location"),
+    ("model_versions", "source"),
+)
+_RELOCATED: set[Path] = set()
+
+
+def relocate_store(layout: DataLayout) -> int:
+    """Point the local store's artefact locations at this data folder when the folder was copied or
+    moved (they are absolute file URIs; users copy data folders to share them). Returns the rows changed."""
+    if layout.mlflow_db in _RELOCATED or not layout.mlflow_db.exists():
+        return 0
+    new = (layout.mlartifacts).as_uri() + "/"
+    changed = 0
+    with closing(sqlite3.connect(layout.mlflow_db, timeout=60)) as con, con:
+        tables = {row[0] for row in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        found = con.execute(
+            "SELECT artifact_location FROM experiments WHERE artifact_location LIKE 'file://%/mlartifacts/%' LIMIT 1"
+        ).fetchall()
+        old = found[0][0].split("/mlartifacts/")[0] + "/mlartifacts/" if found else new
+        if old != new:
+            for table, column in _LOCATION_COLUMNS:
+                if table in tables:
+                    changed += con.execute(
+                        f"UPDATE {table} SET {column} = ? || substr({column}, ?) WHERE substr({column}, 1, ?) = ?",
+                        (new, len(old) + 1, len(old), old),
+                    ).rowcount
+    _RELOCATED.add(layout.mlflow_db)
+    return changed
 
 
 @contextmanager

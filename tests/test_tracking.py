@@ -3,6 +3,7 @@ updates after it; their figures are in the run already, so each step is drawn on
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import mlflow
@@ -50,3 +51,19 @@ def test_the_teachers_run_writer_skips_iterations_the_run_holds(tmp_path: Path) 
         after.log(it, {"Loss/value": 0.5, "Train/mean_reward": float(it)})
     assert _steps(uri, run_id, "Loss/value") == list(range(6))
     assert _steps(uri, run_id, "Train/mean_reward") == list(range(6))
+
+
+def test_a_copied_data_folder_finds_its_artefacts_in_the_copy(tmp_path: Path) -> None:
+    """MLflow stores artefact locations as absolute file URIs; the copy's store is pointed at the copy."""
+    original = DataLayout(tmp_path / "original")
+    with tracking.stage_run(original, "ingest", "probe") as run:
+        mlflow.log_text("hello", "note.txt")
+        run_id = run.info.run_id
+    shutil.copytree(original.root, tmp_path / "copy")
+    shutil.rmtree(original.root)  # the original is gone: only the copy can answer
+    copy = DataLayout(tmp_path / "copy")
+    assert tracking.relocate_store(copy) > 0
+    tracking.experiment(copy, "ingest")
+    client = MlflowClient(tracking.local_uri(copy))
+    assert client.get_run(run_id).info.artifact_uri.startswith(copy.mlartifacts.as_uri())
+    assert mlflow.artifacts.load_text(f"runs:/{run_id}/note.txt") == "hello"
