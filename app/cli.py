@@ -73,10 +73,10 @@ def _unusable_folder(root: Path) -> str | None:
     return None
 
 
-def _run_flow(entrypoint: str, **parameters: object) -> object:
-    """Call the flow ``module:function`` with ``parameters`` against a Prefect API that
-    ends with this command: the user's server when PREFECT_API_URL (environment or Prefect
-    profile) names one, else a server of this process on the data folder's database
+def _run_flow[R](entrypoint: str, returns: type[R], **parameters: object) -> R:
+    """Call the flow ``module:function`` with ``parameters`` (its result must be a ``returns``)
+    against a Prefect API that ends with this command: the user's server when PREFECT_API_URL
+    (environment or Prefect profile) names one, else a server of this process on the data folder's database
     (app.local_server: unlike Prefect's temporary server, it cannot outlive a
     killed run). The server starts first and comes up while Prefect and the flow's
     modules are imported. Call after ``_layout``: Prefect reads its settings once, when
@@ -112,19 +112,23 @@ def _run_flow(entrypoint: str, **parameters: object) -> object:
         flow = getattr(importlib.import_module(module), function)
         with terminal:
             if api is None:
-                return flow(**parameters)
-            # stopped at exit, after Prefect's log and event workers have sent what they hold
-            # (they drain at thread shutdown, before atexit), as Prefect stops its own server
-            atexit.register(api.stop)
-            url = api.wait_ready(settings.server.ephemeral.startup_timeout_seconds)
-            os.environ["PREFECT_API_URL"] = url  # for processes the flow starts (task runners)
-            # and for threads without the flow's context (a process pool's result and log
-            # forwarding): they read the global settings, made at import, before this URL existed
-            from prefect.context import refresh_global_settings_context
+                result = flow(**parameters)
+            else:
+                # stopped at exit, after Prefect's log and event workers have sent what they hold
+                # (they drain at thread shutdown, before atexit), as Prefect stops its own server
+                atexit.register(api.stop)
+                url = api.wait_ready(settings.server.ephemeral.startup_timeout_seconds)
+                os.environ["PREFECT_API_URL"] = url  # for processes the flow starts (task runners)
+                # and for threads without the flow's context (a process pool's result and log
+                # forwarding): they read the global settings, made at import, before this URL existed
+                from prefect.context import refresh_global_settings_context
 
-            refresh_global_settings_context()
-            with temporary_settings({PREFECT_API_URL: url}):
-                return flow(**parameters)
+                refresh_global_settings_context()
+                with temporary_settings({PREFECT_API_URL: url}):
+                    result = flow(**parameters)
+    if not isinstance(result, returns):
+        raise TypeError(f"flow {entrypoint} returned a {type(result).__name__}, not a {returns.__name__}")
+    return result
 
 
 @contextmanager
@@ -188,7 +192,11 @@ def ingest(
     _check_profile(profile)
     layout = _layout(data)
     result = _run_flow(
-        "flows.ingest:ingest", profile=profile, data=str(layout.root), folder=str(folder.resolve()) if folder else None
+        "flows.ingest:ingest",
+        dict,
+        profile=profile,
+        data=str(layout.root),
+        folder=str(folder.resolve()) if folder else None,
     )
     console.print(result)
 
@@ -198,7 +206,7 @@ def retarget(profile: ProfileOpt = "smoke", data: DataOpt = None) -> None:
     """Kinematic retargeting of every ingested glove recording to LEAP joints (flow `retarget`)."""
     _check_profile(profile)
     layout = _layout(data)
-    console.print(_run_flow("flows.retarget:retarget", profile=profile, data=str(layout.root)))
+    console.print(_run_flow("flows.retarget:retarget", dict, profile=profile, data=str(layout.root)))
 
 
 @app.command()
@@ -217,7 +225,12 @@ def teachers(
     _check_profile(profile)
     layout = _layout(data)
     for row in _run_flow(
-        "flows.teachers:teachers", profile=profile, data=str(layout.root), tasks=task or None, methods=method or None
+        "flows.teachers:teachers",
+        list,
+        profile=profile,
+        data=str(layout.root),
+        tasks=task or None,
+        methods=method or None,
     ):
         console.print(row)
 
@@ -235,7 +248,7 @@ def student(
     `student`); a killed training resumes from its last checkpoint."""
     _check_profile(profile)
     layout = _layout(data)
-    result = _run_flow("flows.student:student", profile=profile, data=str(layout.root), variants=variant or None)
+    result = _run_flow("flows.student:student", dict, profile=profile, data=str(layout.root), variants=variant or None)
     table = Table(
         "variant", "task", "joint error (rad)", "kinematic input (rad)", "contact F1", "predicted F1", "success"
     )
@@ -268,6 +281,7 @@ def evaluate(
     console.print(
         _run_flow(
             "flows.evaluate:evaluate",
+            dict,
             profile=profile,
             data=str(layout.root),
             ratings=str(ratings.resolve()) if ratings else None,
@@ -291,7 +305,7 @@ def policy(
     _check_profile(profile)
     layout = _layout(data)
     rows = _run_flow(
-        "flows.policy:policy", profile=profile, data=str(layout.root), tasks=task or None, methods=method or None
+        "flows.policy:policy", list, profile=profile, data=str(layout.root), tasks=task or None, methods=method or None
     )
     table = Table(
         "task",
@@ -330,7 +344,7 @@ def run(
     """Run every stage that exists, as one Prefect flow (`pipeline`), on a profile."""
     _check_profile(profile)
     layout = _layout(data)
-    result = _run_flow("flows.pipeline:pipeline", profile=profile, data=str(layout.root), synthesize=synthesize)
+    result = _run_flow("flows.pipeline:pipeline", dict, profile=profile, data=str(layout.root), synthesize=synthesize)
     from flows.pipeline import headline  # imported by now: Prefect after _layout's settings
 
     table = Table("stage", "headline figures", title=f"pipeline ({profile})", title_justify="left")

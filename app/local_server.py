@@ -33,9 +33,15 @@ import urllib.request
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
+from types import FrameType
+from typing import IO, Any
 
 _PR_SET_PDEATHSIG = 1  # <linux/prctl.h>
 _UVICORN_STARTUP_FAILURE = 3  # uvicorn's exit status when it cannot bind its port
+
+
+# what ``signal.signal`` takes and returns (typeshed's private ``signal._HANDLER``)
+type SignalHandler = Callable[[int, FrameType | None], Any] | int | signal.Handlers | None
 
 
 class ServerFailed(RuntimeError):
@@ -57,14 +63,22 @@ def _die_with(parent_pid: int) -> Callable[[], None] | None:
     return preexec
 
 
-def spawn_owned(cmd: Sequence[str], env: Mapping[str, str] | None = None, **popen: object) -> subprocess.Popen:
-    """Start ``cmd`` in its own process group, killed by the kernel if this process dies."""
+def spawn_owned(
+    cmd: Sequence[str],
+    env: Mapping[str, str] | None = None,
+    *,
+    stdout: int | IO[Any] | None = None,
+    text: bool | None = None,
+) -> subprocess.Popen:
+    """Start ``cmd`` in its own process group, killed by the kernel if this process dies; ``stdout``
+    and ``text`` as for ``subprocess.Popen``."""
     return subprocess.Popen(
         list(cmd),
         env=dict(env) if env is not None else None,
         start_new_session=True,
         preexec_fn=_die_with(os.getpid()),
-        **popen,
+        stdout=stdout,
+        text=text,
     )
 
 
@@ -189,7 +203,7 @@ class StopRequest:
 
     def __init__(self) -> None:
         self.signum: int | None = None
-        self._previous: dict[int, object] = {}
+        self._previous: dict[int, SignalHandler] = {}
 
     def _note(self, signum: int, _frame: object) -> None:
         self.signum = signum

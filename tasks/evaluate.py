@@ -166,22 +166,25 @@ def log_evaluation(
     runs: dict[str, str] = {}
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp)
-        for row in summary.itertuples(index=False):
-            name = f"{row.source}/{row.method}/{'all' if row.task == ALL else row.task}"
+        for row in summary.to_dict(orient="records"):
+            source, method, task_name = row["source"], row["method"], row["task"]
+            name = f"{source}/{method}/{'all' if task_name == ALL else task_name}"
             tags = {"kind": "method", "profile": profile, "reference_source": reference}
             with tracking.stage_run(layout, "evaluate", name, tags) as run:
-                mlflow.log_params({"source": row.source, "task": row.task, "method": row.method})
-                values = {k: float(getattr(row, k)) for k in RUN_METRICS}
+                mlflow.log_params({"source": source, "task": task_name, "method": method})
+                values = {k: float(row[k]) for k in RUN_METRICS}
                 regional = metrics[
-                    (metrics["source"] == row.source)
-                    & (metrics["method"] == row.method)
-                    & (metrics["task"] == row.task)
+                    (metrics["source"] == source)
+                    & (metrics["method"] == method)
+                    & (metrics["task"] == task_name)
                     & (metrics["region"] != ALL)
                 ]
-                values |= {f"f1_{r.region}": float(r.f1) for r in regional.itertuples(index=False)}
+                values |= {
+                    f"f1_{region}": float(f1) for region, f1 in zip(regional["region"], regional["f1"], strict=True)
+                }
                 mlflow.log_metrics(values)
-                if row.task != ALL:
-                    for png in _timelines(layout.lake, reference, row.source, row.method, row.task, out):
+                if task_name != ALL:
+                    for png in _timelines(layout.lake, reference, source, method, task_name, out):
                         mlflow.log_artifact(str(png), "contact_timelines")
                 runs[name] = run.info.run_id
         with tracking.stage_run(
@@ -258,7 +261,9 @@ def publish_artefacts(
     ]
     create_table_artifact(
         key="evaluate-contact-metrics",
-        table=shown.round(4).astype(object).where(shown.notna(), None).to_dict(orient="records"),
+        # pandas-stubs gaps: where() takes None (JSON null for the artefact: NaN is no JSON),
+        # and the records' keys are typed Hashable though these columns are named by str
+        table=shown.round(4).astype(object).where(shown.notna(), None).to_dict(orient="records"),  # pyright: ignore[reportArgumentType]
         description=(
             f"Contact fidelity and onset error per source/method/task vs the human reference "
             f"({profile}; task '*' = all)"

@@ -16,7 +16,7 @@ import os
 import sys
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import Any, Protocol
 
 LOG_FILE_ENV = "TOUCH2ROBOT_LOG_FILE"
 VERBOSE_ENV = "TOUCH2ROBOT_VERBOSE"
@@ -101,27 +101,38 @@ def show_worker_logs_with(handler: logging.Handler | None) -> None:
     _worker_logs_to = handler
 
 
-def forward_worker_logs() -> Callable[[str, Any], tuple[str, Any]]:
+class WorkerMessageProcessor(Protocol):
+    """What ProcessPoolTaskRunner calls with each message of a worker (Prefect's private
+    ``_SubprocessMessageProcessor``, whose parameter names an implementation must keep)."""
+
+    def __call__(self, message_type: str, message_payload: Any) -> tuple[str, Any] | None: ...
+
+
+def forward_worker_logs() -> WorkerMessageProcessor:
     """A ProcessPoolTaskRunner message processor (factory): each run log a worker forwards to the
     API goes to the handler of ``show_worker_logs_with`` too, as a log record of this process."""
 
-    def process(kind: str, payload: Any) -> tuple[str, Any]:
+    def process(message_type: str, message_payload: Any) -> tuple[str, Any]:
         handler = _worker_logs_to
-        level = int(payload.get("level", logging.INFO)) if kind == "log" and isinstance(payload, dict) else 0
+        level = (
+            int(message_payload.get("level", logging.INFO))
+            if message_type == "log" and isinstance(message_payload, dict)
+            else 0
+        )
         if handler is not None and level >= max(handler.level, 1):
-            created = datetime.datetime.fromisoformat(payload["timestamp"]).timestamp()
+            created = datetime.datetime.fromisoformat(message_payload["timestamp"]).timestamp()
             record = logging.makeLogRecord(
                 {
-                    "name": payload.get("name", ""),
+                    "name": message_payload.get("name", ""),
                     "levelno": level,
                     "levelname": logging.getLevelName(level),
-                    "msg": payload.get("message", ""),
+                    "msg": message_payload.get("message", ""),
                     "created": created,
                     "msecs": (created % 1) * 1000,
                 }
             )
             handler.handle(record)
-        return kind, payload
+        return message_type, message_payload
 
     return process
 
@@ -147,6 +158,7 @@ class TrainingProgress:
         every_s: float = 10.0,
     ) -> None:
         from prefect import get_run_logger
+        from prefect.logging.loggers import PrefectLogAdapter
 
         self.label, self.unit, self.total, self.headline, self.done, self.every_s = (
             label,
@@ -156,7 +168,11 @@ class TrainingProgress:
             done,
             every_s,
         )
-        self.logger = get_run_logger().getChild("progress")
+        run_logger = get_run_logger()
+        # a run's logger is Prefect's adapter (its getChild keeps the run's extra), or a plain
+        # Logger where Prefect's run loggers are disabled; a bare LoggerAdapter has no getChild
+        assert isinstance(run_logger, logging.Logger | PrefectLogAdapter)
+        self.logger = run_logger.getChild("progress")
         self._start: tuple[float, int] | None = None  # (time, units done) at the first call
         self._last_s = -float("inf")
 

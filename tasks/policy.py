@@ -7,6 +7,7 @@ from __future__ import annotations
 import hashlib
 import json
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 
 from prefect import get_run_logger, task
@@ -232,7 +233,7 @@ def report_policy(profile: str, rows: list[dict]) -> list[dict]:
 
 
 def rollout_sources(
-    data: str, config: PolicyConfig, tasks: list[str] | None = None, methods: list[str] | None = None
+    data: str, config: PolicyConfig, tasks: Sequence[str] | None = None, methods: Sequence[str] | None = None
 ) -> list[dict]:
     """The rollouts file of every task x method (most preferred of ``config.origins``, narrowed to
     ``tasks`` / ``methods``), with its content hash and, with ``config.same_demonstrations``, the

@@ -90,7 +90,7 @@ def build_task_runner(config: RunnerConfig) -> TaskRunner[Any]:
             subprocess_message_processor_factories=(forward_worker_logs,),
         )
     try:
-        from prefect_dask import DaskTaskRunner
+        from prefect_dask.task_runners import DaskTaskRunner
     except ImportError as e:  # the optional extra is missing
         raise ImportError(
             "runner kind 'dask' needs the dask extra: `uv sync --extra dask` (prefect-dask, distributed)"
@@ -146,7 +146,7 @@ class ProfileTaskRunner(TaskRunner[PrefectFuture[Any]]):
         super().__init__()
         self._config = config
         self._parameter = parameter
-        self._section = section
+        self._section: RunnerSection = section
         self._inner: TaskRunner[Any] | None = None
 
     def duplicate(self) -> ProfileTaskRunner:

@@ -157,6 +157,7 @@ def _store_rollouts(layout: DataLayout, task_name: str, method: str, origin: str
 def teacher_rollouts(trained: dict, config: TeacherConfig, recordings: list[dict], digest: str, data: str) -> dict:
     """``config.rollouts_per_task`` deterministic rollouts of a trained teacher -> ``rollouts`` and
     sim ``contacts``; success rate and contact F1 vs the human preference go to its MLflow run."""
+    import numpy as np
     import torch
     from tensordict import TensorDict
 
@@ -170,7 +171,7 @@ def teacher_rollouts(trained: dict, config: TeacherConfig, recordings: list[dict
     vec_env = make_teacher_env(task_name, refs, config, method, n_envs=config.rollouts_per_task)
     policy = load_policy(vec_env, config, Path(trained["checkpoint"]))
 
-    def act(obs: dict) -> object:
+    def act(obs: dict[str, np.ndarray]) -> np.ndarray:
         groups = TensorDict(
             {k: torch.as_tensor(v, dtype=torch.float32) for k, v in obs.items()}, batch_size=[vec_env.num_envs]
         )

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import mlflow
 from mlflow.entities import Metric
+from mlflow.exceptions import MlflowException
 
 from touch2robot.settings import DataLayout
 
@@ -105,9 +106,12 @@ def _get_or_create(layout: DataLayout, name: str, stage: str, uri: str) -> str:
     location = (layout.mlartifacts / stage).as_uri() if uri == local_uri(layout) else None
     try:
         return mlflow.create_experiment(name, artifact_location=location)
-    except mlflow.exceptions.MlflowException:
-        # another process created it between our lookup and create
-        return mlflow.get_experiment_by_name(name).experiment_id
+    except MlflowException:
+        # another process created it between our lookup and create; if none did, the error stands
+        created = mlflow.get_experiment_by_name(name)
+        if created is None:
+            raise
+        return created.experiment_id
 
 
 @contextmanager

@@ -275,7 +275,7 @@ RUN_AS_CLI = textwrap.dedent(
     if __name__ == "__main__":  # the pool's workers (spawned) import this script again
         _layout(Path(sys.argv[1]))
         sys.path.insert(0, sys.argv[2])
-        _run_flow("long_trainings:trains", folder=sys.argv[3])
+        _run_flow("long_trainings:trains", type(None), folder=sys.argv[3])
     """
 )
 

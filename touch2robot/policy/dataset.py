@@ -24,6 +24,7 @@ import os
 import shutil
 import time
 import uuid
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -135,7 +136,7 @@ def common_demonstrations(paths: list[Path]) -> list[str]:
 
 
 def chosen_sources(
-    lake: Path, cfg: PolicyConfig, tasks: list[str] | None = None, methods: list[str] | None = None
+    lake: Path, cfg: PolicyConfig, tasks: Sequence[str] | None = None, methods: Sequence[str] | None = None
 ) -> list[tuple[Source, list[str] | None]]:
     """Every task x method's rollouts file (most preferred of ``cfg.origins``, narrowed to ``tasks``
     / ``methods``) with, under ``cfg.same_demonstrations``, the demonstrations every chosen method of

@@ -176,10 +176,11 @@ def train(
         save_checkpoint,
         update_last_checkpoint,
     )
-    from lerobot.datasets import EpisodeAwareSampler, compute_sampler_state
+    from lerobot.datasets import EpisodeAwareSampler, LeRobotDataset, compute_sampler_state
     from lerobot.datasets.factory import make_dataset
     from lerobot.optim.factory import make_optimizer_and_scheduler
     from lerobot.policies import make_policy, make_pre_post_processors
+    from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
     from lerobot.scripts.lerobot_train import update_policy
     from lerobot.utils.logging_utils import AverageMeter, MetricsTracker
     from lerobot.utils.random_utils import get_rng_state, set_rng_state, set_seed
@@ -189,19 +190,25 @@ def train(
 
     output_dir = Path(output_dir)
     pipeline = pipeline_config(dataset_root, repo_id, cfg, output_dir, steps)
+    # pipeline_config sets all three (LeRobot's config has them optional)
+    policy_cfg, optimizer_cfg, seed = pipeline.policy, pipeline.optimizer, pipeline.seed
+    assert isinstance(policy_cfg, DiffusionConfig) and optimizer_cfg is not None and seed is not None
     resume = last_checkpoint(output_dir)
-    accelerator = Accelerator(step_scheduler_with_optimizer=False, cpu=pipeline.policy.device == "cpu")
-    set_seed(pipeline.seed, accelerator=accelerator)
+    accelerator = Accelerator(step_scheduler_with_optimizer=False, cpu=policy_cfg.device == "cpu")
+    # LeRobot annotates the accelerator of set_seed and MetricsTracker as a Callable; both take an Accelerator
+    set_seed(seed, accelerator=accelerator)  # pyright: ignore[reportArgumentType]
     dataset = make_dataset(pipeline)
+    assert isinstance(dataset, LeRobotDataset)  # one local dataset: neither several nor streamed
     column_views(dataset)
     if resume is not None:
-        pipeline.policy.pretrained_path = resume / PRETRAINED
-    policy = make_policy(cfg=pipeline.policy, ds_meta=dataset.meta)
+        policy_cfg.pretrained_path = resume / PRETRAINED
+    policy = make_policy(cfg=policy_cfg, ds_meta=dataset.meta)
     if resume is None:
-        preprocessor, postprocessor = make_pre_post_processors(pipeline.policy, dataset_stats=dataset.meta.stats)
+        # LeRobot annotates dataset_stats as tensors; it takes the metadata's NumPy statistics (as lerobot-train)
+        preprocessor, postprocessor = make_pre_post_processors(policy_cfg, dataset_stats=dataset.meta.stats)  # pyright: ignore[reportArgumentType]
     else:  # the checkpoint's processors carry the statistics the run started with
         preprocessor, postprocessor = make_pre_post_processors(
-            pipeline.policy,
+            policy_cfg,
             pretrained_path=str(resume / PRETRAINED),
             preprocessor_overrides={"device_processor": {"device": accelerator.device.type}},
         )
@@ -210,13 +217,16 @@ def train(
     if resume is not None:
         step, optimizer, scheduler = load_training_state(resume, optimizer, scheduler)
     start_step = step
+    episodes = dataset.meta.episodes
+    if episodes is None:  # LeRobot loads no episode table for a dataset without episodes
+        raise ValueError(f"LeRobot dataset {repo_id} in {dataset_root} has no episodes to train on")
     sampler = EpisodeAwareSampler(
-        dataset.meta.episodes["dataset_from_index"],
-        dataset.meta.episodes["dataset_to_index"],
+        episodes["dataset_from_index"],
+        episodes["dataset_to_index"],
         episode_indices_to_use=dataset.episodes,
-        drop_n_last_frames=pipeline.policy.drop_n_last_frames,
+        drop_n_last_frames=policy_cfg.drop_n_last_frames,
         shuffle=True,
-        seed=pipeline.seed,
+        seed=seed,
         absolute_to_relative_idx=dataset.absolute_to_relative_idx,
     )
     checkpoint_rng = None
@@ -251,7 +261,7 @@ def train(
         dataset.num_episodes,
         meters,
         initial_step=step,
-        accelerator=accelerator,
+        accelerator=accelerator,  # pyright: ignore[reportArgumentType]
     )
     batches = cycle(loader)
     windows = _loss_log(output_dir, step)
@@ -268,7 +278,7 @@ def train(
             policy,
             batch,
             optimizer,
-            pipeline.optimizer.grad_clip_norm,
+            optimizer_cfg.grad_clip_norm,
             accelerator=accelerator,
             lr_scheduler=scheduler,
         )
@@ -279,17 +289,18 @@ def train(
         )
         if step % pipeline.log_freq == 0 or step == pipeline.steps or ending:
             now = time.perf_counter()
+            # the tracker's own meters (``meters``), typed where its attributes are not
             figures = {
-                "loss": tracker.loss.avg,
-                "lr": tracker.lr.val,
-                "grad_norm": tracker.grad_norm.avg,
-                "samples_per_s": tracker.loss.count * pipeline.batch_size / (now - window_start),
+                "loss": meters["loss"].avg,
+                "lr": meters["lr"].val,
+                "grad_norm": meters["grad_norm"].avg,
+                "samples_per_s": meters["loss"].count * pipeline.batch_size / (now - window_start),
                 # where an update's time goes: waiting for the loader's batch vs the update itself
-                "data_s": tracker.dataloading_s.avg,
-                "update_s": tracker.update_s.avg,
+                "data_s": meters["dataloading_s"].avg,
+                "update_s": meters["update_s"].avg,
             }
-            if tracker.gpu_mem_gb.count:
-                figures["gpu_mem_gb"] = tracker.gpu_mem_gb.val
+            if meters["gpu_mem_gb"].count:
+                figures["gpu_mem_gb"] = meters["gpu_mem_gb"].val
             windows.append({"step": step, **figures})
             output_dir.mkdir(parents=True, exist_ok=True)
             with open(output_dir / LOSS_LOG, "a") as log:

@@ -62,6 +62,7 @@ class DrawerSuccess(SuccessCriterion):
 
 def demonstrate(spec: TaskSpec, hand: HumanHand, rng: np.random.Generator, pace: float) -> Trajectory:
     """Reach the handle palm-forward, hook the fingers round it and pull along the slide."""
+    assert spec.slide is not None
     scene = Scene.from_task(spec)
     obj_pos = np.asarray(spec.object.init_pos, float)
     obj_quat = np.array([1.0, 0.0, 0.0, 0.0])

@@ -54,6 +54,7 @@ class RotateSuccess(SuccessCriterion):
 
 def demonstrate(spec: TaskSpec, hand: HumanHand, rng: np.random.Generator, pace: float) -> Trajectory:
     """Turn the cube about the vertical in three re-grasps of 30 degrees each."""
+    assert spec.rotation_angle is not None
     scene = Scene.from_task(spec)
     obj_pos = np.asarray(spec.object.init_pos) + np.r_[rng.uniform(-0.015, 0.015, 2), 0.0]
     yaw0 = rng.uniform(-0.2, 0.2)
@@ -77,6 +78,7 @@ def demonstrate(spec: TaskSpec, hand: HumanHand, rng: np.random.Generator, pace:
         b.phase(0.5 * pace, joints=q)
         b.carry(1.0 * pace, obj_pos, yaw(yaw0 + (k + 1) * step))
         b.phase(0.4 * pace, joints=Q_OPEN)
+    assert b is not None  # made in the loop's first round
     b.phase(0.8 * pace, wrist_pos=b.state[1] + [0.0, 0.0, 0.08])
     return b.build()
 

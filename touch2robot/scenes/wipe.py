@@ -56,6 +56,7 @@ class WipeSuccess(SuccessCriterion):
 
 def demonstrate(spec: TaskSpec, hand: HumanHand, rng: np.random.Generator, pace: float) -> Trajectory:
     """Press the sponge with the flat palm and drag it through the path's waypoints."""
+    assert spec.wipe_path is not None
     shift = np.r_[rng.uniform(-0.01, 0.01, 2), 0.0]
     path = np.array([[x, y, spec.object.init_pos[2]] for x, y in spec.wipe_path]) + shift
     obj_quat = yaw(0.0)

@@ -53,20 +53,20 @@ class Objective(Protocol):
         ...
 
 
-class RslVecEnv(VecEnv):
+class RslVecEnv[O: Objective](VecEnv):
     """The VecEnv rsl-rl's OnPolicyRunner drives. Copies that finish are reset inside
     ``step`` (rsl-rl has no reset call); ``extras["time_outs"]`` marks truncations so that
     PPO bootstraps them, and ``extras["log"]`` carries the mean of each reward term."""
 
     def __init__(
-        self, env: BatchEnv, objective: Objective, max_episode_length: int, seed: int = 0, device: str | None = None
+        self, env: BatchEnv, objective: O, max_episode_length: int, seed: int = 0, device: str | None = None
     ) -> None:
         self.env = env
         self.objective = objective
         self.num_envs = env.n
         self.num_actions = objective.num_actions
         self.max_episode_length = max_episode_length
-        self.device = device or env.cfg.device
+        self.device: str = device or env.cfg.device
         self.cfg = {"sim": env.cfg.model_dump(), "task": env.scene.spec.name, "objective": type(objective).__name__}
         self.rng = np.random.default_rng(seed)
         self.episode_length_buf = torch.zeros(self.num_envs, dtype=torch.long, device=device)
@@ -118,9 +118,9 @@ def episode_steps(env: BatchEnv) -> int:
     return max(1, round(seconds / env.cfg.control_dt))
 
 
-def make_vec_env(
-    task: str, objective: Objective, cfg: SimConfig | None = None, max_episode_length: int | None = None
-) -> RslVecEnv:
+def make_vec_env[O: Objective](
+    task: str, objective: O, cfg: SimConfig | None = None, max_episode_length: int | None = None
+) -> RslVecEnv[O]:
     """An rsl-rl VecEnv of ``cfg.n_envs`` copies of a task scene driven by ``objective``."""
     cfg = cfg or SimConfig()
     env = BatchEnv(build_scene(task, cfg), cfg)

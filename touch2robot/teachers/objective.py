@@ -252,7 +252,7 @@ class DemoTracking:
         a = np.clip(actions, -1.0, 1.0)
         terms["action_rate"] = -w.action_rate * np.mean((a - self.prev_action) ** 2, axis=1)
         if self._kp is None:
-            self._kp = env.model.actuator_gainprm[:, 0].copy()
+            self._kp = np.array(env.model.actuator_gainprm[:, 0])  # a copy
         torque = self._kp * (env.joint_targets - env.hand_qpos)
         terms["energy"] = -w.energy * np.sum(np.abs(torque * env.hand_qvel), axis=1)
         lost = self._lost(env, pos_err, rot_err)

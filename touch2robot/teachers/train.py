@@ -119,7 +119,7 @@ class CallbackLogWriter(LogWriter):
 
 def make_teacher_env(
     task: str, refs: References, config: TeacherConfig, method: str, n_envs: int | None = None
-) -> RslVecEnv:
+) -> RslVecEnv[DemoTracking]:
     """The batched env of one task driven by the teacher objective of ``method``."""
     env = BatchEnv(build_scene(task, config.sim), config.sim, n_envs or config.sim.n_envs)
     objective = DemoTracking(refs, config, method)
