@@ -7,6 +7,7 @@ import shutil
 from pathlib import Path
 
 import mlflow
+from mlflow.artifacts import load_text
 from mlflow.tracking import MlflowClient
 
 from tasks import tracking
@@ -65,5 +66,6 @@ def test_a_copied_data_folder_finds_its_artefacts_in_the_copy(tmp_path: Path) ->
     assert tracking.relocate_store(copy) > 0
     tracking.experiment(copy, "ingest")
     client = MlflowClient(tracking.local_uri(copy))
-    assert client.get_run(run_id).info.artifact_uri.startswith(copy.mlartifacts.as_uri())
-    assert mlflow.artifacts.load_text(f"runs:/{run_id}/note.txt") == "hello"
+    artifact_uri = client.get_run(run_id).info.artifact_uri
+    assert artifact_uri is not None and artifact_uri.startswith(copy.mlartifacts.as_uri())
+    assert load_text(f"runs:/{run_id}/note.txt") == "hello"

@@ -2,7 +2,7 @@
 or rollout (named by its id), hive-style partition folders where ``schemas.tables.PARTITIONS``
 says so. Every file is written to a temporary name and renamed into place, so a reader
 or a crash never sees half a file, and re-writing the same id replaces it (idempotent).
-Beside every file lies its producer's digest (``<id>.parquet.sha256``, written after the file):
+Beside every file lies its producer's digest (``.<id>.parquet.sha256``, written after the file):
 a file changed by anything but this module (a stray ``COPY ... TO``, a disk fault, a half-finished
 copy) no longer matches it, and ingest and the catalog refresh find it with ``check``.
 Which id a file has, and who writes it, is the catalog's to say: ``touch2robot.datasets``."""
@@ -27,7 +27,8 @@ class LakeFileChanged(RuntimeError):
 
 
 def digest_path(path: Path) -> Path:
-    return path.with_name(path.name + DIGEST_SUFFIX)
+    # hidden: readers of a table's folder (pyarrow datasets, DuckDB globs) skip dot files
+    return path.with_name(f".{path.name}{DIGEST_SUFFIX}")
 
 
 def _sha256(path: Path) -> str:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import os
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -44,11 +45,12 @@ class RecordingJob:
     @property
     def stem(self) -> str:
         base = f"{self.task}_s{self.subject:02d}_d{self.demo:02d}"
-        return {
+        stems: dict[str, str] = {
             RecordingKind.GLOVE_SESSION: f"{base}_glove",
             RecordingKind.ROBOT_REPLAY: f"{base}_{self.method}_replay",
             RecordingKind.ROBOT_CALIBRATION: f"{base}_{self.method}_calib",
-        }[self.kind]
+        }
+        return stems[self.kind]
 
     @property
     def file_name(self) -> str:
@@ -120,11 +122,12 @@ def _write_groundtruth(
 
 def write_recording(config: SynthConfig, job: RecordingJob, recordings: Path, groundtruth: Path) -> Path:
     """Write one recording (and its ground truth); returns the MCAP path."""
-    writer = {
+    writers: dict[str, Callable[[SynthConfig, RecordingJob, Path, Path], None]] = {
         RecordingKind.GLOVE_SESSION: _write_glove,
         RecordingKind.ROBOT_REPLAY: _write_replay,
         RecordingKind.ROBOT_CALIBRATION: _write_calibration,
-    }[job.kind]
+    }
+    writer = writers[job.kind]
     path = recordings / job.file_name
     writer(config, job, path, groundtruth / f"{job.stem}.parquet")
     return path

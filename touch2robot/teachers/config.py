@@ -9,13 +9,11 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 from schemas.vocabulary import TEACHER_METHODS, Method
 from touch2robot.scenes import TASKS
 from touch2robot.sim.config import SimConfig
-
-TeacherMethod = Literal["touch2robot", "contrack", "dexmachina"]
 
 
 class _Frozen(BaseModel):
@@ -112,7 +110,7 @@ class TeacherConfig(_Frozen):
     """Teachers per task and method, and the rollouts they produce."""
 
     tasks: tuple[str, ...] = TASKS
-    methods: tuple[TeacherMethod, ...] = TEACHER_METHODS
+    methods: tuple[Method, ...] = TEACHER_METHODS
     sim: SimConfig = SimConfig()
     ppo: PPOConfig = PPOConfig()
     variants: dict[str, MethodConfig] = Field(default_factory=default_methods)
@@ -139,6 +137,14 @@ class TeacherConfig(_Frozen):
     )
     rollouts_per_task: int = Field(default=30, ge=1, description="deterministic teacher rollouts per task and method")
     seed: int = 0
+
+    @field_validator("methods")
+    @classmethod
+    def _only_teacher_methods(cls, methods: tuple[Method, ...]) -> tuple[Method, ...]:
+        others = [m for m in methods if m not in TEACHER_METHODS]
+        if others:
+            raise ValueError(f"{', '.join(others)} has no PPO teacher; teacher methods: {', '.join(TEACHER_METHODS)}")
+        return methods
 
     def method(self, name: str) -> MethodConfig:
         """The variant of a method; a clear error for an unknown one."""
