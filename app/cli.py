@@ -87,16 +87,18 @@ def _run_flow[R](entrypoint: str, returns: type[R], **parameters: object) -> R:
 
     from app.local_server import PrefectApi, stop_on_termination
     from tasks import logs
+    from touch2robot.settings import DataLayout
 
     module, function = entrypoint.split(":")
-    log_file = Path(str(parameters["data"])) / "logs" / f"{session.command}-{time.strftime('%Y%m%d-%H%M%S')}.log"
+    root = DataLayout.from_env().root  # the folder ``_layout`` configured
+    log_file = root / "logs" / f"{session.command}-{time.strftime('%Y%m%d-%H%M%S')}.log"
     log_file.parent.mkdir(parents=True, exist_ok=True)
     # for this process and the task runners' workers: MLflow's records go through logging like
     # every library's instead of MLflow's own handler on stderr
     os.environ.update({logs.LOG_FILE_ENV: str(log_file), logs.VERBOSE_ENV: "1" if session.verbose else "0"})
     os.environ.setdefault("MLFLOW_CONFIGURE_LOGGING", "false")
     console.print(f"[dim]log: {log_file}[/]", highlight=False)
-    with _writer_lock(Path(str(parameters["data"]))), stop_on_termination():
+    with _writer_lock(root), stop_on_termination():
         api = None if os.environ.get("PREFECT_API_URL") else PrefectApi(dict(os.environ)).start()
         from prefect.settings import PREFECT_API_URL, get_current_settings, temporary_settings
 
