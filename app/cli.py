@@ -12,7 +12,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 from rich.console import Console
@@ -20,6 +20,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from app.sql_view import SqlCommand
+
+if TYPE_CHECKING:
+    from touch2robot.settings import DataLayout
 
 app = typer.Typer(help=__doc__, no_args_is_help=True, pretty_exceptions_show_locals=False)
 console = Console()
@@ -200,7 +203,7 @@ def ingest(
         data=str(layout.root),
         folder=str(folder.resolve()) if folder else None,
     )
-    console.print(result)
+    _closing(layout, f"ingest ({profile})", {"ingest": result})
 
 
 @app.command()
@@ -208,7 +211,8 @@ def retarget(profile: ProfileOpt = "smoke", data: DataOpt = None) -> None:
     """Kinematic retargeting of every ingested glove recording to LEAP joints (flow `retarget`)."""
     _check_profile(profile)
     layout = _layout(data)
-    console.print(_run_flow("flows.retarget:retarget", dict, profile=profile, data=str(layout.root)))
+    result = _run_flow("flows.retarget:retarget", dict, profile=profile, data=str(layout.root))
+    _closing(layout, f"retarget ({profile})", {"retarget": result})
 
 
 @app.command()
@@ -226,15 +230,15 @@ def teachers(
     (flow `teachers`); a killed training resumes from its last checkpoint."""
     _check_profile(profile)
     layout = _layout(data)
-    for row in _run_flow(
+    rows = _run_flow(
         "flows.teachers:teachers",
         list,
         profile=profile,
         data=str(layout.root),
         tasks=task or None,
         methods=method or None,
-    ):
-        console.print(row)
+    )
+    _closing(layout, f"teachers ({profile})", {"teachers": rows})
 
 
 @app.command()
@@ -280,15 +284,14 @@ def evaluate(
     onset error) and the user study; tables contact_metrics, onset_errors, user_study."""
     _check_profile(profile)
     layout = _layout(data)
-    console.print(
-        _run_flow(
-            "flows.evaluate:evaluate",
-            dict,
-            profile=profile,
-            data=str(layout.root),
-            ratings=str(ratings.resolve()) if ratings else None,
-        )
+    result = _run_flow(
+        "flows.evaluate:evaluate",
+        dict,
+        profile=profile,
+        data=str(layout.root),
+        ratings=str(ratings.resolve()) if ratings else None,
     )
+    _closing(layout, f"evaluate ({profile})", {"evaluate": result})
 
 
 @app.command()
@@ -347,10 +350,15 @@ def run(
     _check_profile(profile)
     layout = _layout(data)
     result = _run_flow("flows.pipeline:pipeline", dict, profile=profile, data=str(layout.root), synthesize=synthesize)
+    _closing(layout, f"pipeline ({profile})", result)
+
+
+def _closing(layout: DataLayout, title: str, results: dict) -> None:
+    """The headline figures of what ran (``flows.pipeline.headline``) and where to look next."""
     from flows.pipeline import headline  # imported by now: Prefect after _layout's settings
 
-    table = Table("stage", "headline figures", title=f"pipeline ({profile})", title_justify="left")
-    for stage, figures in headline(result):
+    table = Table("stage", "headline figures", title=title, title_justify="left")
+    for stage, figures in headline(results):
         table.add_row(stage, figures)
     console.print(table)
     console.print(
