@@ -238,7 +238,8 @@ def test_sigkill_of_the_command_alone_leaves_nothing_running_and_the_rerun_resum
     shutil.copytree(smoke_data / "recordings", data / "recordings")
     files = len(list((data / "recordings").glob("*.mcap")))
     results = data / "prefect" / "results"
-    command = [sys.executable, "-m", "app.cli", "ingest", "--data", str(data)]
+    # --verbose: Prefect's per-task state lines (the cache hits counted below) reach the terminal
+    command = [sys.executable, "-m", "app.cli", "--verbose", "ingest", "--data", str(data)]
 
     def launch(log: Path) -> subprocess.Popen:
         with open(log, "w") as out:
