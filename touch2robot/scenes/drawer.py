@@ -12,13 +12,17 @@ from touch2robot.synth.motion import Scene, Trajectory, _Builder, close_fingers
 
 # Drawer body frame at the centre of its front panel; it slides along world -x (towards the hand).
 FRONT = GeomSpec("box", (0.01, 0.09, 0.04), name="front")
-HANDLE = GeomSpec(
-    "capsule", (0.008, 0.045), pos=(-0.035, 0.0, 0.0), quat=(0.7071068, 0.7071068, 0.0, 0.0), name="handle"
-)
+# A bar pull of the common 128 mm hole spacing standing 40 mm proud of the panel (32 mm clear behind the
+# bar): LEAP fingers are about 20 mm thick and span 75 mm; behind a 25 mm stand-off between posts 80 mm
+# apart, their kinematic replays jammed against the panel and hooked the posts instead of the bar.
+HANDLE = GeomSpec("capsule", (0.008, 0.07), pos=(-0.05, 0.0, 0.0), quat=(0.7071068, 0.7071068, 0.0, 0.0), name="handle")
 HANDLE_POSTS = (
-    GeomSpec("box", (0.0125, 0.005, 0.005), pos=(-0.0225, 0.04, 0.0), name="post_left"),
-    GeomSpec("box", (0.0125, 0.005, 0.005), pos=(-0.0225, -0.04, 0.0), name="post_right"),
+    GeomSpec("box", (0.02, 0.005, 0.005), pos=(-0.03, 0.064, 0.0), name="post_left"),
+    GeomSpec("box", (0.02, 0.005, 0.005), pos=(-0.03, -0.064, 0.0), name="post_right"),
 )
+# The cabinet stands on a 60 mm plinth: hooked round a handle 60 mm above the table, the LEAP's fingers
+# (15 % longer than the human's they follow) drove their tips into the table top in every replay.
+PLINTH = 0.06
 TRAY = GeomSpec("box", (0.08, 0.085, 0.005), pos=(0.09, 0.0, -0.035), name="tray")
 
 
@@ -30,7 +34,7 @@ def default_config() -> TaskSpec:
             geoms=(FRONT, HANDLE, *HANDLE_POSTS, TRAY),
             mass=0.4,
             friction=0.8,
-            init_pos=(0.10, 0.0, 0.06),
+            init_pos=(0.10, 0.0, 0.06 + PLINTH),
             rgba=(0.55, 0.4, 0.25, 1.0),
         ),
         episode_s=8.0,
@@ -38,11 +42,20 @@ def default_config() -> TaskSpec:
             axis=(-1.0, 0.0, 0.0),
             range=(0.0, 0.18),
             damping=2.0,
+            # the tray sliding on its rails: mu 0.25 x 0.4 kg x g. Without it, the fingers opening to let go
+            # pushed a released drawer back 2-3 cm in the kinematic replays.
+            frictionloss=0.25 * 0.4 * 9.81,
             cabinet=(
-                GeomSpec("box", (0.1, 0.11, 0.005), pos=(0.20, 0.0, 0.105), name="cabinet_top"),
-                GeomSpec("box", (0.1, 0.005, 0.05), pos=(0.20, 0.105, 0.05), name="cabinet_left"),
-                GeomSpec("box", (0.1, 0.005, 0.05), pos=(0.20, -0.105, 0.05), name="cabinet_right"),
-                GeomSpec("box", (0.005, 0.11, 0.05), pos=(0.30, 0.0, 0.05), name="cabinet_back"),
+                GeomSpec("box", (0.1, 0.11, 0.005), pos=(0.20, 0.0, 0.105 + PLINTH), name="cabinet_top"),
+                GeomSpec(
+                    "box", (0.1, 0.005, 0.05 + PLINTH / 2), pos=(0.20, 0.105, 0.05 + PLINTH / 2), name="cabinet_left"
+                ),
+                GeomSpec(
+                    "box", (0.1, 0.005, 0.05 + PLINTH / 2), pos=(0.20, -0.105, 0.05 + PLINTH / 2), name="cabinet_right"
+                ),
+                GeomSpec(
+                    "box", (0.005, 0.11, 0.05 + PLINTH / 2), pos=(0.30, 0.0, 0.05 + PLINTH / 2), name="cabinet_back"
+                ),
             ),
         ),
         # success: drawer opened at least this far along its slide

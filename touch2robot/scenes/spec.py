@@ -47,6 +47,7 @@ class SlideSpec:
     range: tuple[float, float]
     damping: float
     cabinet: tuple[GeomSpec, ...]  # fixed geoms of the cabinet around the drawer
+    frictionloss: float = 0.0  # N: Coulomb friction of the rails (what keeps a released drawer where it is)
 
 
 @dataclass(frozen=True)

@@ -181,7 +181,16 @@ def scene_xml(spec: TaskSpec, cfg: SimConfig) -> str:
         sub(body, "freejoint", name="object_free")
     else:
         sl = spec.slide
-        sub(body, "joint", name="drawer_slide", type="slide", axis=sl.axis, range=sl.range, damping=sl.damping)
+        sub(
+            body,
+            "joint",
+            name="drawer_slide",
+            type="slide",
+            axis=sl.axis,
+            range=sl.range,
+            damping=sl.damping,
+            frictionloss=sl.frictionloss,
+        )
     # split the mass over the primitives by volume so that MuJoCo composes a consistent inertia
     volumes = np.array([_geom_volume(g) for g in obj.geoms])
     for g, m in zip(obj.geoms, obj.mass * volumes / volumes.sum(), strict=True):
