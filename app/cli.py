@@ -595,6 +595,7 @@ def sim_check(
             f"[red]no lake in {layout.root}[/red]: run touch2robot ingest and touch2robot retarget "
             f"--data {layout.root}",
             highlight=False,
+            soft_wrap=True,
         )
         raise typer.Exit(2)
 
@@ -645,6 +646,7 @@ def sim_check(
             f"[red]no retargeted demonstrations of {', '.join(missing)}[/red] in {layout.lake}: "
             f"run touch2robot retarget --data {layout.root}",
             highlight=False,
+            soft_wrap=True,
         )
         raise typer.Exit(2)
     if not all(s.passed for s in summaries):
