@@ -559,6 +559,100 @@ def sim_render(
         console.print(str(path))
 
 
+@sim_app.command("check")
+def sim_check(
+    profile: ProfileOpt = "local",
+    data: DataOpt = None,
+    task: Annotated[
+        list[str] | None, typer.Option(help="task to check (repeatable; default the profile's teacher.tasks)")
+    ] = None,
+    each: Annotated[
+        bool, typer.Option("--each", "--verbose", "-v", help="also print every demonstration's replay")
+    ] = False,
+) -> None:
+    """Each task's reference success: the kinematic replay (Dex Retargeting) of every retargeted
+    demonstration in MuJoCo, as the teachers start from it. Exit 1 when a task is below the target
+    share of successful demonstrations, 2 when there is nothing to replay. Reads the lake only."""
+    import math
+
+    from touch2robot import scenes
+    from touch2robot.config import ProfileError, load_profile
+    from touch2robot.settings import DataLayout
+
+    try:
+        teacher = load_profile(profile).teacher
+    except ProfileError as e:
+        console.print(f"[red]bad profile:[/red] {e}")
+        raise typer.Exit(2) from None
+    unknown = sorted(set(task or ()) - set(scenes.REGISTRY))
+    if unknown:
+        console.print(f"[red]unknown task {', '.join(unknown)}[/red] (tasks: {', '.join(scenes.REGISTRY)})")
+        raise typer.Exit(2)
+    tasks = tuple(task or teacher.tasks)
+    layout = DataLayout.from_env(data)
+    if not layout.lake.is_dir():
+        console.print(
+            f"[red]no lake in {layout.root}[/red]: run touch2robot ingest and touch2robot retarget "
+            f"--data {layout.root}",
+            highlight=False,
+            soft_wrap=True,
+        )
+        raise typer.Exit(2)
+
+    from touch2robot.sim.check import REFERENCE_TARGET, check_references, summarize
+
+    with console.status(f"replaying the demonstrations of {', '.join(tasks)}"):
+        rows = check_references(layout.lake, tasks, teacher.sim, teacher)
+    summaries = summarize(rows, tasks)
+    if each or session.verbose:
+        demos = Table(title="kinematic replay of each demonstration", title_justify="left")
+        demos.add_column("task")
+        demos.add_column("recording", no_wrap=True)
+        # tracking lost: the object left its reference by more than the teachers' thresholds;
+        # the largest position (drawer: opening) and orientation errors over the replay
+        for header in ("subject", "success", "progress", "lost (s)", "err (cm)", "rot (deg)"):
+            demos.add_column(header, justify="left" if header in ("subject", "success") else "right")
+        for r in rows:
+            demos.add_row(
+                r.task,
+                r.recording_id,
+                r.subject,
+                "yes" if r.success else "[red]no[/red]",
+                f"{r.progress:.2f}",
+                "-" if r.lost_at_s is None else f"{r.lost_at_s:.2f}",
+                f"{100 * r.max_pos_error_m:.1f}",
+                f"{math.degrees(r.max_rot_error_rad):.0f}",
+            )
+        console.print(demos)
+    table = Table(
+        "task",
+        "demonstrations",
+        "successes",
+        "rate",
+        "result",
+        title=f"reference success ({profile}), target {REFERENCE_TARGET:.2f}",
+        title_justify="left",
+    )
+    for s in summaries:
+        if s.rate is None:
+            table.add_row(s.task, "0", "-", "-", "[yellow]no retargeted demonstrations[/yellow]")
+        else:
+            result = "pass" if s.passed else "[red]FAIL[/red]"
+            table.add_row(s.task, str(s.demonstrations), str(s.successes), f"{s.rate:.2f}", result)
+    console.print(table)
+    missing = [s.task for s in summaries if s.rate is None]
+    if missing:
+        console.print(
+            f"[red]no retargeted demonstrations of {', '.join(missing)}[/red] in {layout.lake}: "
+            f"run touch2robot retarget --data {layout.root}",
+            highlight=False,
+            soft_wrap=True,
+        )
+        raise typer.Exit(2)
+    if not all(s.passed for s in summaries):
+        raise typer.Exit(1)
+
+
 def main() -> None:
     app()
 
