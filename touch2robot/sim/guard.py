@@ -8,7 +8,12 @@ start of every copy, so after a call only the last copy of each thread's share s
 ``BatchEnv.step`` therefore checks cheap signs after every call (a copy whose clock did not advance
 by the whole control step, warnings left on a thread's data, a non-finite state, arena use over
 ``ARENA_BUDGET``) and, only when one shows, replays copies one at a time with ``replay_copy`` to
-name the copy and the warning in a ``LostPhysicsError``.
+name the copy and the warning in a ``LostPhysicsError``. One case slips through a single call: a
+full contact or constraint buffer in the last substep of a copy that is not the last of its
+thread's share leaves no stalled clock and no counter; the overflowing contacts are still there at
+the next step's first substep, which is caught (unless the copy is reset in between). Resets after
+a bad position, velocity or acceleration always show as a restarted clock (given two or more
+substeps per control step).
 
 The arena budget exists because a full arena is worse than a warning: MuJoCo's stack, which
 shares the arena with contacts and constraints, ends in a fatal error when it overflows, and in a
