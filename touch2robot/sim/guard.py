@@ -28,15 +28,15 @@ import numpy as np
 
 # share of the arena (<size memory>) a copy may use before stepping stops with an error
 ARENA_BUDGET = 0.5
-W = mujoco.mjtWarning
+MjWarning = mujoco.mjtWarning
 WARNING_CAUSES = {
-    W.mjWARN_CONTACTFULL: "contact buffer full",
-    W.mjWARN_CNSTRFULL: "constraint buffer full",
-    W.mjWARN_BADQPOS: "NaN, Inf or huge position (the copy was reset)",
-    W.mjWARN_BADQVEL: "NaN, Inf or huge velocity (the copy was reset)",
-    W.mjWARN_BADQACC: "NaN, Inf or huge acceleration: the simulation is unstable (the copy was reset)",
-    W.mjWARN_BADCTRL: "NaN, Inf or huge control (all controls were zeroed)",
-    W.mjWARN_INERTIA: "invalid inertia",
+    MjWarning.mjWARN_CONTACTFULL: "contact buffer full",
+    MjWarning.mjWARN_CNSTRFULL: "constraint buffer full",
+    MjWarning.mjWARN_BADQPOS: "NaN, Inf or huge position (the copy was reset)",
+    MjWarning.mjWARN_BADQVEL: "NaN, Inf or huge velocity (the copy was reset)",
+    MjWarning.mjWARN_BADQACC: "NaN, Inf or huge acceleration: the simulation is unstable (the copy was reset)",
+    MjWarning.mjWARN_BADCTRL: "NaN, Inf or huge control (all controls were zeroed)",
+    MjWarning.mjWARN_INERTIA: "invalid inertia",
 }
 ARENA_HINT = "raise <size memory> in the scene MJCF"
 
@@ -62,9 +62,9 @@ def raised_warnings(data: mujoco.MjData) -> list[int]:
 
 def warning_cause(warning: int, model: mujoco.MjModel) -> str:
     """What a MuJoCo warning means for the simulation, with its name and, for a full buffer, the remedy."""
-    name = W(warning).name
-    cause = f"{WARNING_CAUSES[W(warning)]} ({name})"
-    if warning in (W.mjWARN_CONTACTFULL, W.mjWARN_CNSTRFULL):
+    name = MjWarning(warning).name
+    cause = f"{WARNING_CAUSES[MjWarning(warning)]} ({name})"
+    if warning in (MjWarning.mjWARN_CONTACTFULL, MjWarning.mjWARN_CNSTRFULL):
         cause += f" in an arena of {model.narena / 1024:.0f} KiB: {ARENA_HINT}"
     return cause
 
