@@ -55,6 +55,13 @@ def _params(config: TeacherConfig, method: str) -> dict[str, object]:
     return flat
 
 
+def _retry_unless_lost_physics(task, task_run, state) -> bool:
+    """A simulation that lost physics (``LostPhysicsError``) fails the same way again: no retry."""
+    from touch2robot.sim.guard import LostPhysicsError
+
+    return not isinstance(state.data, LostPhysicsError)
+
+
 def _run_folder(layout: DataLayout, task_name: str, method: str, config: TeacherConfig, digest: str) -> Path:
     """One folder per distinct training: checkpoints of another config or other demonstrations
     are never resumed into this one."""
@@ -76,6 +83,7 @@ def _run_folder(layout: DataLayout, task_name: str, method: str, config: Teacher
     cache_policy=cache_policy(*TEACHER_MODULES),
     persist_result=True,
     retries=1,
+    retry_condition_fn=_retry_unless_lost_physics,
     task_run_name="teacher-{task_name}-{method}",
 )
 def train_teacher(
@@ -85,6 +93,7 @@ def train_teacher(
     run (stage "teachers"), checkpoints are its artefacts. A killed run resumes from the newest
     checkpoint: the retry, or the next flow run, continues instead of starting over. A stopped run
     (SIGTERM, Ctrl-C) first checkpoints the iteration it is in."""
+    from touch2robot.sim.guard import LostPhysicsError
     from touch2robot.teachers.train import WALL_CLOCK_SUFFIX, make_teacher_env, train
 
     one_torch_thread()
@@ -116,16 +125,24 @@ def train_teacher(
         mean_return,
         done=lambda iteration: iteration + 1,
     )
+    iteration_in_progress = [0]  # the one after the last this attempt logged (0 until it logs one)
+
+    def note_step(step: int, metrics: dict[str, float]) -> None:
+        iteration_in_progress[0] = step + 1
+
     try:
         with checkpoint_on_stop() as stop_requested:
             result = train(
                 vec_env,
                 config,
                 folder,
-                on_log=both(mlflow_run.log, progress),
+                on_log=both(mlflow_run.log, progress, note_step),
                 on_checkpoint=mlflow_run.checkpoint,
                 should_stop=stop_requested,
             )
+    except LostPhysicsError:
+        mlflow_run.client.log_metric(run_id, "sim/lost_physics", 1.0, step=iteration_in_progress[0])
+        raise
     finally:
         vec_env.env.close()
     if result.resumed_from:

@@ -6,6 +6,8 @@ state), so resets, observations and rewards are numpy operations over the whole 
 each copy's next state depends only on its own state and command: the same state gives
 the same next state whatever N is. (Rollout starts every call from a zero solver warm start
 rather than whatever a worker thread's MjData last held, which is what makes this exact.)
+A step that loses physics in any copy (full contact or constraint buffer, unstable or non-finite
+state, arena nearly full) raises ``LostPhysicsError`` naming the copy (``touch2robot.sim.guard``).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import numpy as np
 from mujoco import rollout
 
 from touch2robot.sim.config import SimConfig
+from touch2robot.sim.guard import LostPhysicsError, arena_over_budget, replay_copy
 from touch2robot.sim.scene import Scene
 from touch2robot.sim.success import SuccessTracker
 
@@ -52,11 +55,12 @@ class BatchEnv:
     """The physics of N copies of one scene (no rewards: objectives sit on top).
 
     ``step(joint_targets, wrist_pos, wrist_quat)`` advances every copy one control step;
-    ``reset(ids, qpos)`` re-initialises some copies. Per-region contact forces (touch
-    sensors over the eight tactile regions) and fingertip positions are read from the
-    sensor data of the last physics substep (MuJoCo evaluates sensors at the start of a
-    step, so they describe the state one substep before ``state``). Task success is tracked
-    per copy from the object state (``success``, ``progress``).
+    ``reset(ids, qpos)`` re-initialises some copies. A step that loses physics raises
+    ``LostPhysicsError`` (``lost_physics`` counts them) and leaves ``state`` as it was before it.
+    Per-region contact forces (touch sensors over the eight tactile regions) and fingertip
+    positions are read from the sensor data of the last physics substep (MuJoCo evaluates
+    sensors at the start of a step, so they describe the state one substep before ``state``).
+    Task success is tracked per copy from the object state (``success``, ``progress``).
     """
 
     def __init__(self, scene: Scene, cfg: SimConfig, n_envs: int | None = None) -> None:
@@ -95,6 +99,7 @@ class BatchEnv:
         self._slide_axis = np.zeros(3) if slide is None else np.asarray(slide.axis, dtype=np.float64)
         self.tracker = SuccessTracker(scene.spec, self.n)
         self.tracker.reset(np.arange(self.n), self.object_pos, self.object_quat)
+        self.lost_physics = 0  # steps that raised LostPhysicsError
 
     def close(self) -> None:
         """Stop the rollout worker threads."""
@@ -127,6 +132,18 @@ class BatchEnv:
         )
         self._control[:, :, nu + nv : nu + nv + 3] = self.wrist_pos[:, None, :]
         self._control[:, :, nu + nv + 3 :] = self.wrist_quat[:, None, :]
+        try:
+            self._rollout_step()
+        except mujoco.FatalError as error:  # one thread only: in a worker thread MuJoCo exits the process
+            self._raise_lost_physics(str(error).splitlines()[0])
+        if self._physics_lost():
+            self._raise_lost_physics()
+        self.state[:] = self._state_out[:, -1]
+        self.sensordata[:] = self._sensor_out[:, -1]
+        self.time_step += 1
+        self.tracker.update(self.object_pos, self.object_quat, self.drawer_opening)
+
+    def _rollout_step(self) -> None:
         self._rollout.rollout(
             self._models,
             self._datas,
@@ -139,10 +156,45 @@ class BatchEnv:
             state=self._state_out,
             sensordata=self._sensor_out,
         )
-        self.state[:] = self._state_out[:, -1]
-        self.sensordata[:] = self._sensor_out[:, -1]
-        self.time_step += 1
-        self.tracker.update(self.object_pos, self.object_quat, self.drawer_opening)
+
+    def _suspects(self) -> np.ndarray:
+        """(N,) bool: copies whose clock did not advance by the control step in the last rollout (it
+        stops stepping a copy at its first warning; MuJoCo's resets restart the clock) or whose state
+        is non-finite."""
+        dt = self.model.opt.timestep
+        stalled = np.abs(self._state_out[:, -1, 0] - self.state[:, 0] - self.cfg.substeps * dt) > 0.5 * dt
+        return stalled | ~np.isfinite(self._state_out[:, -1]).all(axis=1)
+
+    def _physics_lost(self) -> bool:
+        """Cheap signs that the last rollout lost physics somewhere: a suspect copy, warnings left on a
+        thread's data (its last copy's, from any substep), or a thread's arena use over budget."""
+        return bool(
+            self._suspects().any()
+            or any(d.warning.number.any() or arena_over_budget(d, self.model) for d in self._datas)
+        )
+
+    def _raise_lost_physics(self, fatal: str | None = None) -> None:
+        """Find the copy that lost physics by replaying copies one at a time from their states before
+        the step (``state`` is not yet overwritten), suspects first, and raise for the first found.
+        ``fatal``: MuJoCo's error that cut the rollout short (its outputs then mean nothing)."""
+        self.lost_physics += 1
+        task = self.scene.spec.name
+        suspects = np.zeros(self.n, dtype=bool) if fatal else self._suspects()
+        scratch = mujoco.MjData(self.model)
+        for i in np.concatenate([np.flatnonzero(suspects), np.flatnonzero(~suspects)]):
+            found = replay_copy(self.model, scratch, self.state[i], self._control[i], STATE_SPEC, CONTROL_SPEC)
+            if found is not None:
+                substep, cause = found
+                time_s = (self.time_step[i] * self.cfg.substeps + substep + 1) * self.model.opt.timestep
+                raise LostPhysicsError(task, int(i), float(time_s), cause)
+        if suspects.any():  # no replay reproduced it: name the first suspect by what the rollout left
+            i = int(np.flatnonzero(suspects)[0])
+            finite = np.isfinite(self._state_out[i, -1]).all()
+            cause = "the rollout stopped stepping it" if finite else "non-finite state"
+            raise LostPhysicsError(task, i, float((self.time_step[i] + 1) * self.cfg.control_dt), cause)
+        raise LostPhysicsError(
+            task, None, None, fatal or "a thread's data shows lost physics that no replay reproduces"
+        )
 
     def reset(
         self,
