@@ -624,6 +624,9 @@ def sim_check(
                 f"{math.degrees(r.max_rot_error_rad):.0f}",
             )
         console.print(demos)
+    for r in rows:
+        if r.physics_error:
+            console.print(f"[red]lost physics[/red] in {r.recording_id}: {r.physics_error}", highlight=False)
     table = Table(
         "task",
         "demonstrations",

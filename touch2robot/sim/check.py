@@ -22,6 +22,7 @@ from touch2robot.datasets import retargeted_demonstrations
 from touch2robot.scenes.spec import TaskSpec
 from touch2robot.sim.config import SimConfig
 from touch2robot.sim.env import BatchEnv
+from touch2robot.sim.guard import LostPhysicsError
 from touch2robot.sim.scene import build_scene
 from touch2robot.teachers.config import TeacherConfig
 from touch2robot.teachers.objective import NUM_ACTIONS, DemoTracking, References, stack_references
@@ -44,6 +45,7 @@ class ReferenceCheck:
     max_rot_error_rad: float  # object orientation distance to its reference (0 for the drawer)
     duration_s: float  # the demonstration's length on the control grid
     steps: int  # control steps replayed
+    physics_error: str | None = None  # the replay lost its physics (``LostPhysicsError``): a failure, said why
 
 
 @dataclass(frozen=True)
@@ -102,6 +104,7 @@ def replay_references(
         success, progress = np.zeros(n, dtype=bool), np.zeros(n)
         lost_step = np.full(n, -1)
         max_pos, max_rot = np.zeros(n), np.zeros(n)
+        physics_error: dict[int, str] = {}
         while active.any():
             pos_err, rot_err = objective._tracking_errors(env)  # the objective's own distances to the reference
             max_pos = np.where(active, np.maximum(max_pos, pos_err), max_pos)
@@ -114,7 +117,17 @@ def replay_references(
             if active.any():
                 # a copy past its last frame is commanded that frame again (its result is taken)
                 targets, wrist_pos, wrist_quat, _ = objective.command(env, no_residual)
-                env.step(targets, wrist_pos, wrist_quat)
+                try:
+                    env.step(targets, wrist_pos, wrist_quat)
+                except LostPhysicsError as e:
+                    # that replay fails, saying why; the copy rests at the home state (stable by
+                    # construction) for the others to go on, its figures no longer taken
+                    if e.env in physics_error:
+                        raise
+                    physics_error[e.env] = str(e)
+                    active[e.env], success[e.env] = False, False
+                    progress[e.env] = env.progress[e.env]
+                    env.reset(np.array([e.env]))
     finally:
         env.close()
     dt = sim.control_dt
@@ -131,6 +144,7 @@ def replay_references(
             max_rot_error_rad=float(max_rot[i]),
             duration_s=round(float((refs.length[i] - 1) * dt), 6),
             steps=int(refs.length[i] - 1),
+            physics_error=physics_error.get(i),
         )
         for i in range(n)
     ]
