@@ -22,6 +22,7 @@ into a temporary data folder first (library calls, not timed).
 from __future__ import annotations
 
 import argparse
+import os
 import tempfile
 import time
 from collections import defaultdict
@@ -201,6 +202,13 @@ class ThreadedUpdate:
             return result
 
 
+def busy_cpu_seconds() -> float:
+    """CPU seconds all processes of the machine have spent so far (Linux /proc/stat: user, nice,
+    system, irq, softirq), to tell this run's own load from what else ran beside it."""
+    fields = Path("/proc/stat").read_text().splitlines()[0].split()[1:]
+    return sum(int(fields[i]) for i in (0, 1, 2, 5, 6)) / os.sysconf("SC_CLK_TCK")
+
+
 def print_breakdown(totals: dict[str, float], total: float, iterations: int) -> None:
     accounted = 0.0
     for key, seconds in sorted(totals.items(), key=lambda kv: -kv[1]):
@@ -255,6 +263,7 @@ def main() -> None:
     # the paths alternate iteration by iteration, so that both see the same load of the machine
     path_totals = {path: defaultdict(float) for path in paths}
     wall = dict.fromkeys(paths, 0.0)
+    machine_cpu, own_cpu, timed_start = busy_cpu_seconds(), time.process_time(), time.perf_counter()
     for iteration in range(args.iterations + 1):  # the first round warms up thread pools and allocations
         for path, threads in paths.items():
             update.threads = threads
@@ -267,6 +276,8 @@ def main() -> None:
                     path_totals[path][key] += seconds
         if not iteration:
             recorder.inputs.clear()
+    timed_wall = time.perf_counter() - timed_start
+    others = (busy_cpu_seconds() - machine_cpu - (time.process_time() - own_cpu)) / timed_wall
     if args.profile_update:
         update.threads, update.profile = update_threads(config), True
         runner.learn(1)
@@ -298,6 +309,10 @@ def main() -> None:
             f"iteration {100 * seconds / total:.1f} %"
         )
     today, new = wall.values()
+    print(
+        f"other processes beside this run: {others:.2f} of {os.cpu_count()} cores busy on average (a torch update on "
+        "every core waits at each op for a thread the scheduler has parked)"
+    )
     print(f"iteration speed-up, new path over today's: {today / new:.2f}x")
     rate = env_steps / collect
     print(f"collection: {rate:.0f} env steps/s; physics alone {env_steps / physics:.0f} env steps/s")
