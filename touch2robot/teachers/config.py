@@ -42,6 +42,11 @@ class PPOConfig(_Frozen):
     save_interval: int = Field(
         default=50, ge=1, description="iterations between checkpoints (each one an MLflow artefact)"
     )
+    # None follows sim.threads: the update runs while the physics threads sit idle. The count is fixed
+    # (not the machine's cores) because sums split over another number of threads round differently.
+    update_threads: int | None = Field(
+        default=None, ge=1, description="torch threads in the PPO update (collection: 1); None = sim.threads"
+    )
 
 
 class RewardWeights(_Frozen):

@@ -9,7 +9,8 @@ from __future__ import annotations
 import logging
 import pickle
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -117,6 +118,37 @@ class CallbackLogWriter(LogWriter):
         self.flush()
 
 
+@contextmanager
+def torch_threads(threads: int) -> Iterator[None]:
+    """torch's intra-op thread count set to ``threads`` inside, restored on leaving."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
+def update_threads(config: TeacherConfig) -> int:
+    """The torch threads of the PPO update: ``ppo.update_threads``, else the physics' thread count."""
+    return config.ppo.update_threads or config.sim.threads
+
+
+def _update_on_threads(runner: OnPolicyRunner, threads: int) -> None:
+    """Run rsl-rl's PPO update on ``threads`` torch threads. No physics runs during the update, so it
+    takes the cores the rollout threads use; collection stays on one thread (a small MLP's inference
+    is fastest so, and the physics owns the cores then). Both counts are fixed by the configuration:
+    sums split over another number of threads round differently, and a training's result must not
+    depend on what else runs on the machine."""
+    update = runner.alg.update
+
+    def update_on_threads() -> dict[str, float]:
+        with torch_threads(threads):
+            return update()
+
+    runner.alg.update = update_on_threads
+
+
 def make_teacher_env(
     task: str, refs: References, config: TeacherConfig, method: str, n_envs: int | None = None
 ) -> RslVecEnv[DemoTracking]:
@@ -186,7 +218,8 @@ def train(
     (names ending ``WALL_CLOCK_SUFFIX``, the step the elapsed whole seconds; merged into the
     iteration's call when the two steps are equal); ``on_checkpoint(path)`` gets every checkpoint
     saved. ``should_stop()`` (asked after every iteration) turning true ends the call early with a
-    checkpoint of the iteration just done, from which the next call continues."""
+    checkpoint of the iteration just done, from which the next call continues. Collection runs on
+    one torch thread, the PPO update on ``update_threads(config)``."""
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(config.seed)
@@ -201,10 +234,12 @@ def train(
     runner.current_learning_iteration = done
     remaining = config.ppo.max_iterations - done
     _after_logging(runner, should_stop)
+    _update_on_threads(runner, update_threads(config))
     iterations = max(done, config.ppo.max_iterations)
     if remaining > 0:
         try:
-            runner.learn(remaining)
+            with torch_threads(1):
+                runner.learn(remaining)
         except _Stopped:
             iterations = runner.current_learning_iteration + 1
             runner.save(str(run_dir / f"model_{runner.current_learning_iteration}.pt"))
