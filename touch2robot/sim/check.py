@@ -122,7 +122,7 @@ def replay_references(
                 except LostPhysicsError as e:
                     # that replay fails, saying why; the copy rests at the home state (stable by
                     # construction) for the others to go on, its figures no longer taken
-                    if e.env in physics_error:
+                    if e.env is None or e.env in physics_error:  # not one replay's: the check cannot go on
                         raise
                     physics_error[e.env] = str(e)
                     active[e.env], success[e.env] = False, False
