@@ -114,7 +114,8 @@ def demo_lake(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def scripted_rollout_rows(task: str, method: str, n: int, steps: int, origin: str = "teacher", seed: int = 0):
     """``rollouts`` rows from real MuJoCo physics for tests of the stages that read the table:
     ``n`` copies of a task scene reset at home, driven by a scripted grasp (joint targets blending
-    from home toward a closed hand, the wrist lowering then rising; timing varied per copy). Row
+    from home toward a closed hand, the wrist lowering then rising, or for the drawer pulling along
+    its slide; timing and pull varied per copy). Row
     ``k`` holds the state observed before command ``k`` and that command, as the teachers write.
     Copy ``i`` follows demonstration ``scripted-<i>``."""
     import numpy as np
@@ -131,6 +132,8 @@ def scripted_rollout_rows(task: str, method: str, n: int, steps: int, origin: st
     home = env.home_state[env.layout.qpos][env.scene.hand_qpos]
     onset = rng.uniform(3, 8, n)
     depth = rng.uniform(0.035, 0.05, n)
+    pull = rng.uniform(0.002, 0.005, n)  # m per step along the drawer's slide
+    slide = env.scene.spec.slide
     rows: dict[str, list] = {
         k: []
         for k in (
@@ -154,7 +157,11 @@ def scripted_rollout_rows(task: str, method: str, n: int, steps: int, origin: st
         targets = home + grip * close
         down = depth * np.clip(k / 12, 0, 1) - 0.006 * np.clip(k - 22, 0, None)
         wrist = np.tile(np.concatenate([env.scene.home_wrist_pos, env.scene.home_wrist_quat]), (n, 1))
-        wrist[:, 2] -= down
+        if slide is None:
+            wrist[:, 2] -= down
+        else:
+            wrist[:, 2] -= depth * np.clip(k / 12, 0, 1)
+            wrist[:, :3] += (pull * np.clip(k - 16, 0, None))[:, None] * np.asarray(slide.axis)
         obj = env.object_pose if not env.scene.is_drawer else np.zeros((n, 7))
         for i in range(n):
             rows["rollout_id"].append(f"{origin}-{method}-{task}-{i:03d}")
