@@ -22,6 +22,7 @@ from rich.table import Table
 from app.sql_view import SqlCommand
 
 if TYPE_CHECKING:
+    from touch2robot.config import Profile
     from touch2robot.settings import DataLayout
 
 app = typer.Typer(help=__doc__, no_args_is_help=True, pretty_exceptions_show_locals=False)
@@ -150,11 +151,12 @@ def _writer_lock(root: Path) -> Iterator[None]:
         raise typer.Exit(1) from None
 
 
-def _check_profile(profile: str) -> None:
+def _check_profile(profile: str) -> Profile:
+    """The profile, loaded before any work; a bad one ends the command (exit 2) saying why."""
     from touch2robot.config import ProfileError, load_profile
 
     try:
-        load_profile(profile)
+        return load_profile(profile)
     except ProfileError as e:
         console.print(f"[red]bad profile:[/red] {e}")
         raise typer.Exit(2) from None
@@ -576,14 +578,9 @@ def sim_check(
     import math
 
     from touch2robot import scenes
-    from touch2robot.config import ProfileError, load_profile
     from touch2robot.settings import DataLayout
 
-    try:
-        teacher = load_profile(profile).teacher
-    except ProfileError as e:
-        console.print(f"[red]bad profile:[/red] {e}")
-        raise typer.Exit(2) from None
+    teacher = _check_profile(profile).teacher
     unknown = sorted(set(task or ()) - set(scenes.REGISTRY))
     if unknown:
         console.print(f"[red]unknown task {', '.join(unknown)}[/red] (tasks: {', '.join(scenes.REGISTRY)})")
@@ -599,7 +596,7 @@ def sim_check(
         )
         raise typer.Exit(2)
 
-    from touch2robot.sim.check import REFERENCE_TARGET, check_references, summarize
+    from touch2robot.teachers.check import REFERENCE_TARGET, check_references, summarize
 
     with console.status(f"replaying the demonstrations of {', '.join(tasks)}"):
         rows = check_references(layout.lake, tasks, teacher.sim, teacher)

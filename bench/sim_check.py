@@ -15,7 +15,7 @@ from pathlib import Path
 
 from touch2robot.config import load_profile
 from touch2robot.settings import DataLayout
-from touch2robot.sim.check import REFERENCE_TARGET, replay_references, summarize, task_references
+from touch2robot.teachers.check import REFERENCE_TARGET, replay_references, summarize, task_references
 
 
 def main() -> None:

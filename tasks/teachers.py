@@ -31,11 +31,9 @@ TEACHER_MODULES = (
 
 
 def _references(layout: DataLayout, recordings: list[dict], config: TeacherConfig):
-    from touch2robot.teachers.objective import stack_references
-    from touch2robot.teachers.reference import load_reference
+    from touch2robot.teachers.objective import load_references
 
-    hz = config.sim.control_hz
-    return stack_references([load_reference(layout.lake, r, hz, config.contact_margin_m) for r in recordings])
+    return load_references(layout.lake, recordings, config)
 
 
 def _params(config: TeacherConfig, method: str) -> dict[str, object]:

@@ -1,4 +1,4 @@
-"""The reference check (touch2robot.sim.check, `touch2robot sim check`): the kinematic replay of
+"""The reference check (touch2robot.teachers.check, `touch2robot sim check`): the kinematic replay of
 every demonstration in MuJoCo, on the one-demonstration-per-task lake of conftest."""
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from app.cli import app
 from touch2robot import scenes
 from touch2robot.leap import mjcf
 from touch2robot.settings import DataLayout
-from touch2robot.sim.check import REFERENCE_TARGET, ReferenceCheck, check_references, summarize
 from touch2robot.sim.config import SimConfig
+from touch2robot.teachers.check import REFERENCE_TARGET, ReferenceCheck, check_references, summarize
 from touch2robot.teachers.config import TeacherConfig
 
 runner = CliRunner(env={"COLUMNS": "400"})

@@ -30,6 +30,7 @@ from touch2robot.teachers.train import (
     load_latest,
     make_teacher_env,
     runner_config,
+    torch_threads,
     train,
 )
 
@@ -51,10 +52,8 @@ def refs(demo_lake: Path) -> dict[str, References]:
 
 @pytest.fixture
 def one_torch_thread() -> Iterator[None]:
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+    with torch_threads(1):
+        yield
 
 
 # ---------------------------------------------------------------- references

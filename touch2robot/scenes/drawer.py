@@ -23,6 +23,9 @@ HANDLE_POSTS = (
 # The cabinet stands on a 60 mm plinth: hooked round a handle 60 mm above the table, the LEAP's fingers
 # (15 % longer than the human's they follow) drove their tips into the table top in every replay.
 PLINTH = 0.06
+WALL_HALF = 0.05 + PLINTH / 2  # half height of the cabinet's sides and back, standing on the table
+MASS = 0.4
+RAIL_FRICTION = 0.25  # the tray sliding on its rails
 TRAY = GeomSpec("box", (0.08, 0.085, 0.005), pos=(0.09, 0.0, -0.035), name="tray")
 
 
@@ -32,7 +35,7 @@ def default_config() -> TaskSpec:
         object=ObjectSpec(
             name="drawer",
             geoms=(FRONT, HANDLE, *HANDLE_POSTS, TRAY),
-            mass=0.4,
+            mass=MASS,
             friction=0.8,
             init_pos=(0.10, 0.0, 0.06 + PLINTH),
             rgba=(0.55, 0.4, 0.25, 1.0),
@@ -42,20 +45,14 @@ def default_config() -> TaskSpec:
             axis=(-1.0, 0.0, 0.0),
             range=(0.0, 0.18),
             damping=2.0,
-            # the tray sliding on its rails: mu 0.25 x 0.4 kg x g. Without it, the fingers opening to let go
-            # pushed a released drawer back 2-3 cm in the kinematic replays.
-            frictionloss=0.25 * 0.4 * 9.81,
+            # Coulomb friction of the rails (mu m g): without it, the fingers opening to let go pushed a
+            # released drawer back 2-3 cm in the kinematic replays
+            frictionloss=RAIL_FRICTION * MASS * 9.81,
             cabinet=(
                 GeomSpec("box", (0.1, 0.11, 0.005), pos=(0.20, 0.0, 0.105 + PLINTH), name="cabinet_top"),
-                GeomSpec(
-                    "box", (0.1, 0.005, 0.05 + PLINTH / 2), pos=(0.20, 0.105, 0.05 + PLINTH / 2), name="cabinet_left"
-                ),
-                GeomSpec(
-                    "box", (0.1, 0.005, 0.05 + PLINTH / 2), pos=(0.20, -0.105, 0.05 + PLINTH / 2), name="cabinet_right"
-                ),
-                GeomSpec(
-                    "box", (0.005, 0.11, 0.05 + PLINTH / 2), pos=(0.30, 0.0, 0.05 + PLINTH / 2), name="cabinet_back"
-                ),
+                GeomSpec("box", (0.1, 0.005, WALL_HALF), pos=(0.20, 0.105, WALL_HALF), name="cabinet_left"),
+                GeomSpec("box", (0.1, 0.005, WALL_HALF), pos=(0.20, -0.105, WALL_HALF), name="cabinet_right"),
+                GeomSpec("box", (0.005, 0.11, WALL_HALF), pos=(0.30, 0.0, WALL_HALF), name="cabinet_back"),
             ),
         ),
         # success: drawer opened at least this far along its slide

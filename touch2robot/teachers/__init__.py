@@ -7,4 +7,5 @@ trajectories they produce (the ``rollouts`` table, sim contacts in ``contacts``)
 - ``objective``: the one rsl-rl objective all methods share; methods differ by ``config`` only.
 - ``train``: the OnPolicyRunner configuration (Table VII), MLflow LogWriter, checkpoint resume.
 - ``rollouts``: deterministic teacher rollouts and the kinematic (Dex Retargeting) replays.
+- ``check``: each task's reference success, the kinematic replay of every demonstration to its end.
 """

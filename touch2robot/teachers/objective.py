@@ -21,6 +21,7 @@ Each copy of the batched env samples a demonstration of the task and starts from
 from __future__ import annotations
 
 from collections import deque
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
@@ -28,7 +29,7 @@ import numpy as np
 from touch2robot.geometry import quat_angle, quat_conj, quat_from_rotvec, quat_mul, quat_to_mat, rotvec
 from touch2robot.sim.env import BatchEnv
 from touch2robot.teachers.config import MethodConfig, TeacherConfig
-from touch2robot.teachers.reference import DemoReference
+from touch2robot.teachers.reference import DemoReference, load_reference
 
 GRAVITY = 9.81
 JOINT_ACTIONS = slice(0, 16)
@@ -83,6 +84,13 @@ def stack_references(refs: list[DemoReference]) -> References:
         geo_contact=pad(lambda r: r.geo_contact),
         geo_point=pad(lambda r: np.nan_to_num(r.geo_point)),
     )
+
+
+def load_references(lake: Path, recordings: list[dict], config: TeacherConfig) -> References:
+    """The demonstrations ``recordings`` (``recordings`` rows of one task) on the control grid of
+    ``config.sim``, stacked as the teachers track them."""
+    hz = config.sim.control_hz
+    return stack_references([load_reference(lake, r, hz, config.contact_margin_m) for r in recordings])
 
 
 def step_f1(sim: np.ndarray, ref: np.ndarray) -> np.ndarray:
@@ -227,7 +235,8 @@ class DemoTracking:
         )
         return {"actor": obs, "critic": obs}
 
-    def _tracking_errors(self, env: BatchEnv) -> tuple[np.ndarray, np.ndarray]:
+    def tracking_errors(self, env: BatchEnv) -> tuple[np.ndarray, np.ndarray]:
+        """(N,) object position (drawer: opening) and orientation distances to the current reference frame."""
         if env.scene.is_drawer:
             return np.abs(env.drawer_opening - self._ref("opening", env)), np.zeros(env.n)
         return np.linalg.norm(env.object_pos - self._ref("object_pos", env), axis=1), quat_angle(
@@ -236,7 +245,7 @@ class DemoTracking:
 
     def reward(self, env: BatchEnv, actions: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         w, cfg = self.w, self.cfg
-        pos_err, rot_err = self._tracking_errors(env)
+        pos_err, rot_err = self.tracking_errors(env)
         terms: dict[str, np.ndarray] = {}
         terms["object_pos"] = w.object_pos * np.exp(-pos_err / cfg.sigma_pos)
         terms["object_rot"] = (0.0 if env.scene.is_drawer else w.object_rot) * np.exp(-rot_err / cfg.sigma_rot)
@@ -277,7 +286,7 @@ class DemoTracking:
         return past_grace & ((pos_err > self.cfg.lost_pos_m) | (rot_err > self.cfg.lost_rot_rad))
 
     def terminated(self, env: BatchEnv) -> np.ndarray:
-        pos_err, rot_err = self._tracking_errors(env)
+        pos_err, rot_err = self.tracking_errors(env)
         return self._lost(env, pos_err, rot_err)
 
     def truncated(self, env: BatchEnv) -> np.ndarray:

@@ -25,8 +25,7 @@ from touch2robot.sim.env import BatchEnv
 from touch2robot.sim.guard import LostPhysicsError
 from touch2robot.sim.scene import build_scene
 from touch2robot.teachers.config import TeacherConfig
-from touch2robot.teachers.objective import NUM_ACTIONS, DemoTracking, References, stack_references
-from touch2robot.teachers.reference import load_reference
+from touch2robot.teachers.objective import NUM_ACTIONS, DemoTracking, References, load_references
 
 REFERENCE_TARGET = 0.9  # issue 33: share of each task's demonstrations whose kinematic replay succeeds
 
@@ -76,10 +75,7 @@ def task_references(lake: Path, task: str, teacher: TeacherConfig) -> References
     """A task's retargeted demonstrations on the control grid, as the teachers load them; None
     when the task has none."""
     recordings = retargeted_demonstrations(lake, [task])
-    if not recordings:
-        return None
-    hz = teacher.sim.control_hz
-    return stack_references([load_reference(lake, r, hz, teacher.contact_margin_m) for r in recordings])
+    return load_references(lake, recordings, teacher) if recordings else None
 
 
 def replay_references(
@@ -106,7 +102,7 @@ def replay_references(
         max_pos, max_rot = np.zeros(n), np.zeros(n)
         physics_error: dict[int, str] = {}
         while active.any():
-            pos_err, rot_err = objective._tracking_errors(env)  # the objective's own distances to the reference
+            pos_err, rot_err = objective.tracking_errors(env)  # the objective's own distances to the reference
             max_pos = np.where(active, np.maximum(max_pos, pos_err), max_pos)
             max_rot = np.where(active, np.maximum(max_rot, rot_err), max_rot)
             newly_lost = active & (lost_step < 0) & objective.terminated(env)
