@@ -1,0 +1,425 @@
+"""One robot replay on the hardware twin: a method's trajectory executed open loop on a perturbed rig,
+recorded as the rig records it.
+
+The rows of one rollout (``rollouts`` table) give the reset state (row 0) and the commands (joint
+targets + wrist pose, one per control step). The twin (``touch2robot.twin.model``) starts from that state
+exactly as ``BatchEnv.reset_pose`` does, holds the reset command until the first command arrives (after
+the drawn latency), then each command for one control period, and the last one for ``TwinConfig.hold_s``.
+Open loop, so the whole control sequence is known up front and MuJoCo's rollout steps it in C, in
+chunks, on a worker thread; meanwhile this thread writes the calibration and then each chunk's messages
+(sensor models of ``touch2robot.twin.sensors``; timing and encoding in ``touch2robot.twin.streams``) as
+its physics arrives. Lost physics raises ``LostPhysicsError`` and leaves neither file.
+
+Clocks: physics time 0 is when command 0 is sent; the recording's streams start a few ms earlier and its
+clock sits at a fixed epoch plus an offset drawn from the seed. A sample at recording time t reads the
+physics at the last step at or before it.
+"""
+
+from __future__ import annotations
+
+import functools
+import queue
+import threading
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pyarrow as pa
+from mujoco import rollout as mj_rollout
+
+from schemas.messages import LEAP_JOINT_NAMES, REPLAY_TOPICS
+from schemas.vocabulary import RecordingKind
+from touch2robot import scenes
+from touch2robot.recording.writer import RecordingWriter
+from touch2robot.sim.config import SimConfig
+from touch2robot.sim.env import CONTROL_SPEC, STATE_SPEC
+from touch2robot.sim.guard import LostPhysicsError, arena_over_budget, raised_warnings, replay_copy, warning_cause
+from touch2robot.sim.scene import Scene, build_scene
+from touch2robot.twin import streams
+from touch2robot.twin.config import TwinConfig
+from touch2robot.twin.model import TwinModel, perturb
+from touch2robot.twin.sensors import PalmFsr, TwinTac, sensor_summary
+
+EPOCH_NS = 1_767_225_600 * 10**9  # 2026-01-01T00:00:00Z
+CLOCK_SPAN_S = 10**7  # replays' clocks are spread over ~4 months after the epoch
+CHUNK_S = 0.5  # physics handed to the writer in pieces of this length
+COMMAND_JITTER_S = 0.001  # the command loop's scheduling jitter
+COMMAND_START_S = (0.02, 0.05)  # the first command leaves this long after the recording starts
+CALIBRATION_GAP_S = (2.0, 30.0)  # the calibration ends this long before the replay starts
+RATE_HZ = {topic.name: topic.rate_hz for topic in REPLAY_TOPICS}
+TWINTAC, FSR, JOINT_STATES, JOINT_TARGETS, REFERENCE_TIME = (
+    "/twintac/raw",
+    "/fsr/palm",
+    "/leap/joint_states",
+    "/leap/joint_targets",
+    "/replay/reference_time",
+)
+# the command and the reference time it executes are published together, one stream here
+_STREAMS = (TWINTAC, FSR, JOINT_STATES, JOINT_TARGETS)
+_WIDTHS = {"joint_position": 16, "joint_target": 16, "wrist_state": 7, "wrist_pose": 7, "object_pose": 7}
+_SCALARS = ("step", "t_ref", "drawer_opening")
+
+
+@dataclass(frozen=True)
+class ReplayOutcome:
+    """What one replay wrote and what its twin measured (forces are the twin's true region forces)."""
+
+    replay_path: Path
+    calibration_path: Path
+    steps: int  # physics steps simulated
+    duration_s: float  # physics time simulated, s
+    peak_region_force: tuple[float, ...]  # per region T1..T4, P1..P4, N
+    contact_fraction: tuple[float, ...]  # per region: share of the 100 Hz samples with force > 0.5 N
+    perturbation: dict[str, float]  # every value drawn for this replay
+
+
+@dataclass(frozen=True)
+class _Commands:
+    """One rollout's reset state and command sequence."""
+
+    task: str
+    joint_position: np.ndarray  # (16,) at reset
+    wrist_state: np.ndarray  # (7,) at reset
+    object_pose: np.ndarray  # (7,) at reset
+    drawer_opening: float  # at reset
+    joint_target: np.ndarray  # (K, 16)
+    wrist_pose: np.ndarray  # (K, 7)
+    t_ref: np.ndarray  # (K,)
+
+
+def _matrix(table: pa.Table, name: str, width: int) -> np.ndarray:
+    col = table[name].combine_chunks()
+    values = col.flatten().to_numpy(zero_copy_only=False).astype(np.float64)
+    if values.size != width * len(col):
+        raise ValueError(f"rollout column {name!r} must hold {width} values per row")
+    return values.reshape(len(col), width)
+
+
+def _commands(rollout: pa.Table) -> _Commands:
+    """The rows of one rollout as a reset state and commands, sorted by step; ValueError names what is wrong."""
+    if rollout.num_rows == 0:
+        raise ValueError("the rollout table is empty: no trajectory to replay")
+    missing = [c for c in ("rollout_id", "task", *_WIDTHS, *_SCALARS) if c not in rollout.column_names]
+    if missing:
+        raise ValueError(f"the rollout table lacks column(s) {', '.join(missing)}")
+    for name in ("rollout_id", "task"):
+        values = set(rollout[name].to_pylist())
+        if len(values) != 1:
+            raise ValueError(f"the rows must be one rollout; column {name!r} holds {sorted(map(str, values))}")
+    task = str(rollout["task"][0].as_py())
+    if task not in scenes.TASKS:
+        raise ValueError(f"rollout of unknown task {task!r}; the tasks are {', '.join(scenes.TASKS)}")
+    order = np.argsort(rollout["step"].to_numpy(), kind="stable")
+    rows = rollout.take(pa.array(order))
+    cols = {name: _matrix(rows, name, width) for name, width in _WIDTHS.items()}
+    wrist = cols["wrist_pose"].copy()
+    wrist[:, 3:] /= np.linalg.norm(wrist[:, 3:], axis=1, keepdims=True)
+    return _Commands(
+        task=task,
+        joint_position=cols["joint_position"][0],
+        wrist_state=cols["wrist_state"][0],
+        object_pose=cols["object_pose"][0],
+        drawer_opening=float(rows["drawer_opening"][0].as_py()),
+        joint_target=cols["joint_target"],
+        wrist_pose=wrist,
+        t_ref=rows["t_ref"].to_numpy().astype(np.float64),
+    )
+
+
+@functools.lru_cache(maxsize=8)
+def _nominal_scene(task: str, sim: SimConfig) -> Scene:
+    """The compiled training scene of a task (read only: the twin perturbs copies of its model)."""
+    return build_scene(task, sim)
+
+
+def _initial_state(scene: Scene, model: mujoco.MjModel, data: mujoco.MjData, cmd: _Commands) -> np.ndarray:
+    """The full physics state at reset, as ``BatchEnv.reset_pose`` makes it: hand joints and their servo
+    targets at the recorded joints, wrist body and mocap target at the recorded wrist, object (or drawer)
+    where it was; at rest."""
+    mujoco.mj_resetData(model, data)
+    data.qpos[:] = scene.home_qpos
+    data.qpos[scene.hand_qpos] = cmd.joint_position
+    if scene.is_drawer:
+        data.qpos[scene.object_qpos] = cmd.drawer_opening
+    else:
+        data.qpos[scene.object_qpos : scene.object_qpos + 7] = cmd.object_pose
+    data.qpos[scene.wrist_qpos : scene.wrist_qpos + 7] = cmd.wrist_state
+    data.mocap_pos[0], data.mocap_quat[0] = cmd.wrist_state[:3], cmd.wrist_state[3:]
+    data.ctrl[:] = cmd.joint_position
+    mujoco.mj_forward(model, data)
+    state = np.empty(mujoco.mj_stateSize(model, STATE_SPEC))
+    mujoco.mj_getState(model, data, state, STATE_SPEC)
+    return state
+
+
+def _control(model: mujoco.MjModel, cmd: _Commands, n_steps: int, substeps: int, latency: int) -> np.ndarray:
+    """(n_steps, ncontrol) per physics step: ctrl, no applied force, mocap pos and quat. Step j runs command
+    (j - latency) // substeps (clipped to the last); before the first arrives, the reset command holds."""
+    low, high = model.actuator_ctrlrange.T
+    targets = np.clip(np.vstack([cmd.joint_position, cmd.joint_target]), low, high)
+    wrist = np.vstack([cmd.wrist_state, cmd.wrist_pose])
+    which = np.clip((np.arange(n_steps) - latency) // substeps, -1, len(cmd.joint_target) - 1) + 1
+    nu, nv = model.nu, model.nv
+    control = np.zeros((n_steps, nu + nv + 7))
+    control[:, :nu] = targets[which]
+    control[:, nu + nv :] = wrist[which]
+    return control
+
+
+class _Physics:
+    """The replay's physics on a worker thread (MuJoCo's rollout releases the GIL), chunk after chunk, the
+    solver's warm start carried across chunks (the result equals one rollout over all steps). ``states[j]``
+    is the state at physics time j x timestep (row 0: the reset state), ``sensordata[j]`` the sensors at that
+    time; ``ready()`` blocks until the next chunk is done and returns how many steps are."""
+
+    def __init__(self, task: str, model: mujoco.MjModel, data: mujoco.MjData, state: np.ndarray, control: np.ndarray):
+        self.task, self.model, self.data, self.control = task, model, data, control
+        n = len(control)
+        self.states = np.empty((n + 1, len(state)))
+        self.states[0] = state
+        self.sensordata = np.empty((n, model.nsensordata))
+        chunk = max(1, round(CHUNK_S / model.opt.timestep))
+        self.bounds = [(lo, min(lo + chunk, n)) for lo in range(0, n, chunk)]
+        self._done: queue.Queue[int | BaseException] = queue.Queue()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"twin-{task}", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        warmstart = np.zeros((1, self.model.nv))
+        try:
+            with mj_rollout.Rollout(nthread=0) as pool:
+                for lo, hi in self.bounds:
+                    if self._stop.is_set():
+                        return
+                    try:
+                        pool.rollout(
+                            self.model,
+                            self.data,
+                            self.states[lo : lo + 1],
+                            self.control[None, lo:hi],
+                            control_spec=CONTROL_SPEC,
+                            nstep=hi - lo,
+                            initial_warmstart=warmstart,
+                            state=self.states[None, lo + 1 : hi + 1],
+                            sensordata=self.sensordata[None, lo:hi],
+                        )
+                    except mujoco.FatalError as error:
+                        raise self._lost(lo, hi, f"MuJoCo error {str(error).splitlines()[0]!r}") from None
+                    self._check(lo, hi)
+                    warmstart = self.data.qacc_warmstart[None].copy()
+                    self._done.put(hi)
+        except BaseException as error:  # handed to the writing thread, which raises it
+            self._done.put(error)
+
+    def _check(self, lo: int, hi: int) -> None:
+        """The guard of ``touch2robot.sim.guard``: the rollout stops stepping at a warning (its clock stalls),
+        and leaves the warnings and arena use of the chunk on its data."""
+        dt = self.model.opt.timestep
+        stalled = abs(self.states[hi, 0] - self.states[lo, 0] - (hi - lo) * dt) > 0.5 * dt
+        finite = np.isfinite(self.states[hi]).all()
+        warnings = raised_warnings(self.data)
+        if stalled or not finite or warnings or arena_over_budget(self.data, self.model):
+            cause = "; ".join(warning_cause(w, self.model) for w in warnings) or (
+                "non-finite state" if not finite else "arena use over budget"
+            )
+            raise self._lost(lo, hi, cause)
+
+    def _lost(self, lo: int, hi: int, cause: str) -> LostPhysicsError:
+        """Name the step by replaying the chunk one step at a time (fresh data), else the chunk's start."""
+        found = replay_copy(
+            self.model, mujoco.MjData(self.model), self.states[lo], self.control[lo:hi], STATE_SPEC, CONTROL_SPEC
+        )
+        if found is not None:
+            substep, cause = found
+            return LostPhysicsError(self.task, 0, (lo + substep + 1) * self.model.opt.timestep, cause)
+        return LostPhysicsError(self.task, 0, lo * self.model.opt.timestep, cause)
+
+    def ready(self) -> int:
+        item = self._done.get()
+        if isinstance(item, BaseException):
+            raise item
+        return item
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def _effort(model: mujoco.MjModel, ctrl: np.ndarray, q: np.ndarray, qdot: np.ndarray) -> np.ndarray:
+    """Position servos' torque (what the rig's current reading gives): gain x ctrl + bias . (1, q, qdot),
+    clipped to the force range (the model's actuators are in joint order)."""
+    force = model.actuator_gainprm[:, 0] * ctrl + model.actuator_biasprm[:, 1] * q + model.actuator_biasprm[:, 2] * qdot
+    low, high = model.actuator_forcerange.T
+    return np.where(model.actuator_forcelimited.astype(bool), np.clip(force, low, high), force)
+
+
+def _seeds(seed: int | Sequence[int]) -> list[np.random.Generator]:
+    """Independent generators of one replay: rig, sensors, stream timing and noise, clock."""
+    base = np.random.SeedSequence(seed if isinstance(seed, int) else list(seed))
+    return [np.random.default_rng(child) for child in base.spawn(4)]
+
+
+def replay_rollout(
+    rollout: pa.Table,
+    sim: SimConfig,
+    twin: TwinConfig,
+    seed: int | Sequence[int],
+    replay_path: Path,
+    calibration_path: Path,
+    metadata: dict[str, str],
+) -> ReplayOutcome:
+    """Execute one rollout's commands on a twin drawn from ``twin`` with ``seed``, and write its
+    ``robot_replay`` MCAP (``metadata``: task, subject, method, reference_recording, calibration_recording,
+    rig) and its unloaded ``robot_calibration`` MCAP (same TwinTac set). Both appear whole or not at all.
+    Raises ValueError for rows that are not one rollout of a known task, LostPhysicsError on lost physics."""
+    cmd = _commands(rollout)
+    scene = _nominal_scene(cmd.task, sim)
+    rig_rng, sensor_rng, stream_rng, clock_rng = _seeds(seed)
+    data = mujoco.MjData(scene.model)
+    rig: TwinModel = perturb(scene, twin, sim.timestep, rig_rng, data)
+    twintac, fsr = TwinTac.draw(twin, sensor_rng), PalmFsr.draw(twin, sensor_rng)
+    model = rig.model
+    dt = model.opt.timestep
+    n_steps = len(cmd.joint_target) * sim.substeps + rig.latency_steps + round(twin.hold_s / dt)
+    control = _control(model, cmd, n_steps, sim.substeps, rig.latency_steps)
+    physics = _Physics(cmd.task, model, data, _initial_state(scene, model, data, cmd), control)
+    try:
+        replay_t0 = EPOCH_NS + round(clock_rng.uniform(0, CLOCK_SPAN_S) * 1e9)
+        calibration_s = twin.calibration_s
+        calibration_t0 = replay_t0 - round((calibration_s + clock_rng.uniform(*CALIBRATION_GAP_S)) * 1e9)
+        layout = _Layout.plan(sim, n_steps, dt, stream_rng)
+        # both abort on any error; on success the calibration (exited first) is in place before the replay
+        # that names it
+        with (
+            RecordingWriter(replay_path, RecordingKind.ROBOT_REPLAY, metadata) as replay,
+            RecordingWriter(
+                calibration_path,
+                RecordingKind.ROBOT_CALIBRATION,
+                {"rig": metadata.get("rig", ""), "sensor": "twintac"},
+            ) as calibration,
+        ):
+            _write_calibration(calibration, twintac, calibration_t0, calibration_s, stream_rng)
+            region_force = _write_replay(replay, physics, layout, cmd, rig, twintac, fsr, scene, replay_t0, stream_rng)
+    finally:
+        physics.close()
+    contact = region_force > sim.contact_threshold_n
+    return ReplayOutcome(
+        replay_path=Path(replay_path),
+        calibration_path=Path(calibration_path),
+        steps=n_steps,
+        duration_s=n_steps * dt,
+        peak_region_force=tuple(float(v) for v in region_force.max(axis=0)),
+        contact_fraction=tuple(float(v) for v in contact.mean(axis=0)),
+        perturbation={**rig.perturbation, **sensor_summary(twintac, fsr)},
+    )
+
+
+def _write_calibration(
+    writer: RecordingWriter, twintac: TwinTac, t0_ns: int, duration: float, rng: np.random.Generator
+) -> None:
+    """The unloaded TwinTac recording: the same sensor set, at this recording's own offset."""
+    t = streams.stamps(duration, RATE_HZ[TWINTAC], rng)
+    raw = twintac.read(np.zeros((len(t), 4)), t, twintac.recording_offset(rng), twintac.white_noise(len(t), rng))
+    stamp = streams.to_ns(t0_ns, t)
+    for s, message in zip(stamp.tolist(), streams.encode_tactile(stamp, "twintac", raw), strict=True):
+        writer.write(TWINTAC, s, message)
+
+
+@dataclass(frozen=True)
+class _Layout:
+    """When every message of a replay is sent (recording time, s) and which physics step it reads."""
+
+    start_s: float  # recording time of physics time 0 (command 0 sent)
+    times: dict[str, np.ndarray]  # per stream, sample times
+    steps: dict[str, np.ndarray]  # per stream, the physics step (index of ``states`` / ``sensordata``) read
+    order: np.ndarray  # (messages, 2): (stream index, sample index), in time order
+    order_steps: np.ndarray  # physics step each message of ``order`` needs (non-decreasing)
+
+    @classmethod
+    def plan(cls, sim: SimConfig, n_steps: int, dt: float, rng: np.random.Generator) -> _Layout:
+        start = rng.uniform(*COMMAND_START_S)
+        end = start + n_steps * dt
+        times = {name: streams.stamps(end, RATE_HZ[name], rng) for name in (TWINTAC, FSR, JOINT_STATES)}
+        n_commands = -(-n_steps // sim.substeps)
+        times[JOINT_TARGETS] = (
+            start + np.arange(n_commands) * sim.control_dt + rng.uniform(0.0, COMMAND_JITTER_S, n_commands)
+        )
+        steps = {
+            name: np.clip(np.floor((t - start) / dt).astype(np.int64), 0, n_steps - 1) for name, t in times.items()
+        }
+        stream = np.concatenate([np.full(len(times[n]), i) for i, n in enumerate(_STREAMS)])
+        sample = np.concatenate([np.arange(len(times[n])) for n in _STREAMS])
+        at = np.concatenate([times[n] for n in _STREAMS])
+        order = np.lexsort((stream, at))
+        needs = np.concatenate([steps[n] for n in _STREAMS])[order]
+        return cls(start, times, steps, np.stack([stream[order], sample[order]], 1), needs)
+
+
+def _write_replay(
+    writer: RecordingWriter,
+    physics: _Physics,
+    layout: _Layout,
+    cmd: _Commands,
+    rig: TwinModel,
+    twintac: TwinTac,
+    fsr: PalmFsr,
+    scene: Scene,
+    t0_ns: int,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """Write the replay's messages in time order, each chunk as soon as its physics is done; returns the
+    region forces (N) at the 100 Hz TwinTac samples."""
+    model = rig.model
+    nq = model.nq
+    times, steps = layout.times, layout.steps
+    n_tt, n_fsr, n_js = (len(times[name]) for name in (TWINTAC, FSR, JOINT_STATES))
+    offset, white = twintac.recording_offset(rng), twintac.white_noise(n_tt, rng)
+    fsr_factor = fsr.noise_factor(n_fsr, rng)
+    encoder_noise = rng.normal(0.0, rig.encoder_noise_rad, (n_js, len(scene.hand_qpos)))
+    last = len(cmd.joint_target) - 1
+    sent = np.minimum(np.arange(len(times[JOINT_TARGETS])), last)
+    stamp = {name: streams.to_ns(t0_ns, t) for name, t in times.items()}
+    region_force = np.empty((n_tt, len(scene.region_sensors)))
+
+    def messages(stream: str, lo: int, hi: int) -> list[bytes]:
+        """Encoded messages ``lo:hi`` of a stream (their physics is done)."""
+        j = steps[stream][lo:hi]
+        s = stamp[stream][lo:hi]
+        if stream == TWINTAC:
+            force = physics.sensordata[j][:, scene.region_sensors]
+            region_force[lo:hi] = force
+            return streams.encode_tactile(
+                s, "twintac", twintac.read(force[:, :4], times[stream][lo:hi], offset, white[lo:hi])
+            )
+        if stream == FSR:
+            force = physics.sensordata[j][:, scene.region_sensors[4:]]
+            return streams.encode_tactile(s, "fsr_palm", fsr.read(force, fsr_factor[lo:hi]))
+        if stream == JOINT_STATES:
+            state = physics.states[j]
+            q = state[:, 1 + scene.hand_qpos]
+            qdot = state[:, 1 + nq + scene.hand_dof]
+            effort = _effort(model, physics.control[j, : model.nu], q, qdot)
+            return streams.encode_joint_state(s, "leap", LEAP_JOINT_NAMES, q + encoder_noise[lo:hi], qdot, effort)
+        return streams.encode_joint_state(s, "leap", LEAP_JOINT_NAMES, cmd.joint_target[sent[lo:hi]])
+
+    written = 0
+    cursor = np.zeros(len(_STREAMS), dtype=np.int64)
+    while written < len(layout.order):
+        end = int(np.searchsorted(layout.order_steps, physics.ready(), side="left"))
+        chunk = layout.order[written:end]
+        upto = cursor + np.bincount(chunk[:, 0], minlength=len(_STREAMS))
+        encoded = [messages(name, int(cursor[i]), int(upto[i])) for i, name in enumerate(_STREAMS)]
+        lo, hi = int(cursor[_STREAMS.index(JOINT_TARGETS)]), int(upto[_STREAMS.index(JOINT_TARGETS)])
+        reference = streams.encode_reference_time(stamp[JOINT_TARGETS][lo:hi], "leap", cmd.t_ref[sent[lo:hi]])
+        for stream_index, sample in chunk.tolist():
+            name = _STREAMS[stream_index]
+            at = sample - int(cursor[stream_index])
+            s = int(stamp[name][sample])
+            writer.write(name, s, encoded[stream_index][at])
+            if name == JOINT_TARGETS:
+                writer.write(REFERENCE_TIME, s, reference[at])
+        cursor, written = upto, end
+    return region_force

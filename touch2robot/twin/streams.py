@@ -1,0 +1,95 @@
+"""Message timing and batch CDR encoding of the twin's recordings.
+
+A rig's streams tick at their nominal rates from slightly different starts with a little jitter
+(``stamps``). Encoding: every message of a stream has the same layout (same frame id, joint names
+and array lengths), so one message is encoded with ``touch2robot.recording.cdr`` as a template and
+the rest are that template with the stamp and the numeric payload written in place, all messages of
+a batch at once. The per-message encoders cost more than the physics of a replay; this costs
+microseconds. The result is byte-identical to ``cdr.encode_*`` (tests/test_twin.py checks it).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from touch2robot.recording import cdr
+
+_STAMP_AT = 4  # after the 4-byte encapsulation header: int32 sec, uint32 nanosec
+_F64 = 8
+
+
+def stamps(duration: float, rate: float, rng: np.random.Generator, start: float = 0.0) -> np.ndarray:
+    """Sample times (s) of a stream over ``duration`` s from ``start``: it begins up to 10 ms late and
+    ticks at ``rate`` with up to a fifth of a period of jitter (strictly increasing)."""
+    t = start + rng.uniform(0.0, 0.01) + np.arange(0.0, duration, 1.0 / rate)
+    return t + rng.uniform(0.0, 0.2 / rate, t.size)
+
+
+def to_ns(t0_ns: int, t: np.ndarray) -> np.ndarray:
+    """Absolute stamps (int64 ns) of times ``t`` (s) after ``t0_ns``."""
+    return t0_ns + np.round(t * 1e9).astype(np.int64)
+
+
+def _patch(template: bytes, stamp_ns: np.ndarray, fields: list[tuple[int, np.ndarray]]) -> list[bytes]:
+    """Copies of ``template``, one per stamp, with the header stamp and each (offset, (n, k) array) field
+    written at its byte offset."""
+    n = len(stamp_ns)
+    buf = np.tile(np.frombuffer(template, np.uint8), (n, 1))
+    sec, nanosec = np.divmod(np.asarray(stamp_ns, np.int64), 1_000_000_000)
+    buf[:, _STAMP_AT : _STAMP_AT + 4] = sec.astype("<i4").view(np.uint8).reshape(n, 4)
+    buf[:, _STAMP_AT + 4 : _STAMP_AT + 8] = nanosec.astype("<u4").view(np.uint8).reshape(n, 4)
+    for offset, values in fields:
+        raw = np.ascontiguousarray(values).view(np.uint8).reshape(n, -1)
+        buf[:, offset : offset + raw.shape[1]] = raw
+    return [row.tobytes() for row in buf]
+
+
+def encode_tactile(stamp_ns: np.ndarray, frame_id: str, values: np.ndarray) -> list[bytes]:
+    """TactileArray messages: ``values`` (n, k) as float32, after the header and the array length."""
+    values = np.asarray(values, "<f4")
+    if not len(values):
+        return []
+    template = cdr.encode_tactile(0, frame_id, values[0])
+    return _patch(template, stamp_ns, [(len(template) - values[0].nbytes, values)])
+
+
+def encode_reference_time(stamp_ns: np.ndarray, frame_id: str, reference_time: np.ndarray) -> list[bytes]:
+    """ReferenceTime messages: one float64 each, the last field."""
+    values = np.asarray(reference_time, "<f8").reshape(-1, 1)
+    if not len(values):
+        return []
+    template = cdr.encode_reference_time(0, frame_id, 0.0)
+    return _patch(template, stamp_ns, [(len(template) - _F64, values)])
+
+
+def encode_joint_state(
+    stamp_ns: np.ndarray,
+    frame_id: str,
+    names: tuple[str, ...],
+    position: np.ndarray,
+    velocity: np.ndarray | None = None,
+    effort: np.ndarray | None = None,
+) -> list[bytes]:
+    """JointState messages (n, len(names)) each. The three float64 arrays end the message; each after the
+    first starts with its uint32 length, padded to 8 bytes (it follows an 8-byte-aligned array), and an empty
+    array is its length alone."""
+    position = np.asarray(position, "<f8")
+    if not len(position):
+        return []
+    width = position.shape[1] * _F64
+    if velocity is None or effort is None:
+        if velocity is not None or effort is not None:
+            raise ValueError("velocity and effort go together (or neither)")
+        template = cdr.encode_joint_state(0, frame_id, names, position[0])
+        return _patch(template, stamp_ns, [(len(template) - 8 - width, position)])
+    template = cdr.encode_joint_state(0, frame_id, names, position[0], velocity[0], effort[0])
+    end = len(template)
+    return _patch(
+        template,
+        stamp_ns,
+        [
+            (end - 3 * width - 16, position),
+            (end - 2 * width - 8, np.asarray(velocity, "<f8")),
+            (end - width, np.asarray(effort, "<f8")),
+        ],
+    )
