@@ -17,7 +17,6 @@ physics at the last step at or before it.
 
 from __future__ import annotations
 
-import functools
 import queue
 import threading
 from collections.abc import Sequence
@@ -105,7 +104,7 @@ def _commands(rollout: pa.Table) -> _Commands:
     if missing:
         raise ValueError(f"the rollout table lacks column(s) {', '.join(missing)}")
     for name in ("rollout_id", "task"):
-        values = set(rollout[name].to_pylist())
+        values = rollout[name].unique().to_pylist()
         if len(values) != 1:
             raise ValueError(f"the rows must be one rollout; column {name!r} holds {sorted(map(str, values))}")
     task = str(rollout["task"][0].as_py())
@@ -128,10 +127,29 @@ def _commands(rollout: pa.Table) -> _Commands:
     )
 
 
-@functools.lru_cache(maxsize=8)
+_scenes: dict[tuple[str, str], Scene] = {}
+
+
 def _nominal_scene(task: str, sim: SimConfig) -> Scene:
-    """The compiled training scene of a task (read only: the twin perturbs copies of its model)."""
-    return build_scene(task, sim)
+    """The compiled training scene of a task (read only: the twin perturbs copies of its model), compiled
+    once per process and simulation settings."""
+    key = (task, sim.model_dump_json())
+    if key not in _scenes:
+        _scenes[key] = build_scene(task, sim)
+    return _scenes[key]
+
+
+_scratch = threading.local()
+
+
+def _thread_data(task: str, sim: SimConfig, model: mujoco.MjModel) -> mujoco.MjData:
+    """This thread's data for a scene's models (a new MjData zeroes a 16 MB arena: it costs as much as a
+    tenth of a replay's physics). Replays run one at a time per thread, so one data per scene serves all."""
+    cache: dict[tuple[str, str], mujoco.MjData] = _scratch.__dict__.setdefault("data", {})
+    key = (task, sim.model_dump_json())
+    if key not in cache:
+        cache[key] = mujoco.MjData(model)
+    return cache[key]
 
 
 def _initial_state(scene: Scene, model: mujoco.MjModel, data: mujoco.MjData, cmd: _Commands) -> np.ndarray:
@@ -262,6 +280,30 @@ def _seeds(seed: int | Sequence[int]) -> list[np.random.Generator]:
     return [np.random.default_rng(child) for child in base.spawn(4)]
 
 
+@dataclass(frozen=True)
+class TwinPhysics:
+    """What one replay simulates: the rig drawn for it, its reset state and its control per physics step."""
+
+    commands: _Commands
+    scene: Scene  # the nominal scene the rig perturbs
+    rig: TwinModel
+    data: mujoco.MjData  # this thread's scratch data of the scene (the next replay of the thread reuses it)
+    initial_state: np.ndarray  # full physics state at reset
+    control: np.ndarray  # (steps, ncontrol): ctrl, applied force (none), mocap pos, mocap quat
+
+
+def twin_physics(rollout: pa.Table, sim: SimConfig, twin: TwinConfig, seed: int | Sequence[int]) -> TwinPhysics:
+    """Draw the rig of a replay (as ``replay_rollout`` does with the same seed) and lay out its physics:
+    the commands, then ``twin.hold_s`` holding the last, all delayed by the rig's latency."""
+    cmd = _commands(rollout)
+    scene = _nominal_scene(cmd.task, sim)
+    data = _thread_data(cmd.task, sim, scene.model)
+    rig = perturb(scene, twin, sim.timestep, _seeds(seed)[0], data)
+    n_steps = len(cmd.joint_target) * sim.substeps + rig.latency_steps + round(twin.hold_s / sim.timestep)
+    control = _control(rig.model, cmd, n_steps, sim.substeps, rig.latency_steps)
+    return TwinPhysics(cmd, scene, rig, data, _initial_state(scene, rig.model, data, cmd), control)
+
+
 def replay_rollout(
     rollout: pa.Table,
     sim: SimConfig,
@@ -273,36 +315,34 @@ def replay_rollout(
 ) -> ReplayOutcome:
     """Execute one rollout's commands on a twin drawn from ``twin`` with ``seed``, and write its
     ``robot_replay`` MCAP (``metadata``: task, subject, method, reference_recording, calibration_recording,
-    rig) and its unloaded ``robot_calibration`` MCAP (same TwinTac set). Both appear whole or not at all.
+    rig) and its unloaded ``robot_calibration`` MCAP (same TwinTac set). Both appear whole, the calibration
+    first, or neither does.
     Raises ValueError for rows that are not one rollout of a known task, LostPhysicsError on lost physics."""
-    cmd = _commands(rollout)
-    scene = _nominal_scene(cmd.task, sim)
-    rig_rng, sensor_rng, stream_rng, clock_rng = _seeds(seed)
-    data = mujoco.MjData(scene.model)
-    rig: TwinModel = perturb(scene, twin, sim.timestep, rig_rng, data)
+    prepared = twin_physics(rollout, sim, twin, seed)
+    cmd, scene, rig, model = prepared.commands, prepared.scene, prepared.rig, prepared.rig.model
+    _, sensor_rng, stream_rng, clock_rng = _seeds(seed)
     twintac, fsr = TwinTac.draw(twin, sensor_rng), PalmFsr.draw(twin, sensor_rng)
-    model = rig.model
     dt = model.opt.timestep
-    n_steps = len(cmd.joint_target) * sim.substeps + rig.latency_steps + round(twin.hold_s / dt)
-    control = _control(model, cmd, n_steps, sim.substeps, rig.latency_steps)
-    physics = _Physics(cmd.task, model, data, _initial_state(scene, model, data, cmd), control)
+    n_steps = len(prepared.control)
+    physics = _Physics(cmd.task, model, prepared.data, prepared.initial_state, prepared.control)
     try:
         replay_t0 = EPOCH_NS + round(clock_rng.uniform(0, CLOCK_SPAN_S) * 1e9)
         calibration_s = twin.calibration_s
         calibration_t0 = replay_t0 - round((calibration_s + clock_rng.uniform(*CALIBRATION_GAP_S)) * 1e9)
         layout = _Layout.plan(sim, n_steps, dt, stream_rng)
-        # both abort on any error; on success the calibration (exited first) is in place before the replay
-        # that names it
-        with (
-            RecordingWriter(replay_path, RecordingKind.ROBOT_REPLAY, metadata) as replay,
-            RecordingWriter(
-                calibration_path,
-                RecordingKind.ROBOT_CALIBRATION,
-                {"rig": metadata.get("rig", ""), "sensor": "twintac"},
-            ) as calibration,
-        ):
+        # the calibration is written and closed while the physics runs, and removed again if the replay
+        # fails: a replay appears only after its calibration, and neither stays without the other
+        calibration_metadata = {"rig": metadata.get("rig", ""), "sensor": "twintac"}
+        with RecordingWriter(calibration_path, RecordingKind.ROBOT_CALIBRATION, calibration_metadata) as calibration:
             _write_calibration(calibration, twintac, calibration_t0, calibration_s, stream_rng)
-            region_force = _write_replay(replay, physics, layout, cmd, rig, twintac, fsr, scene, replay_t0, stream_rng)
+        try:
+            with RecordingWriter(replay_path, RecordingKind.ROBOT_REPLAY, metadata) as replay:
+                region_force = _write_replay(
+                    replay, physics, layout, cmd, rig, twintac, fsr, scene, replay_t0, stream_rng
+                )
+        except BaseException:
+            Path(calibration_path).unlink(missing_ok=True)
+            raise
     finally:
         physics.close()
     contact = region_force > sim.contact_threshold_n
