@@ -164,8 +164,8 @@ def _check_profile(profile: str) -> Profile:
 
 @app.command()
 def synth(profile: ProfileOpt = "smoke", data: DataOpt = None) -> None:
-    """Write the simulated demonstrator's recordings (MCAP glove sessions, robot replays,
-    TwinTac calibrations) into <data>/recordings, ground truth into <data>/groundtruth."""
+    """Write the simulated demonstrator's glove sessions (MCAP) into <data>/recordings, ground
+    truth into <data>/groundtruth. Robot replays come from `touch2robot replay`."""
     from touch2robot.config import load_profile
     from touch2robot.synth.generate import plan, write_recording
     from touch2robot.synth.ratings import write_ratings_csv
@@ -271,6 +271,29 @@ def student(
             f"{r['success_rate']:.2f}",
         )
     console.print(table)
+
+
+@app.command()
+def replay(
+    profile: ProfileOpt = "smoke",
+    data: DataOpt = None,
+    task: Annotated[
+        list[str] | None, typer.Option(help="task to replay (repeatable; default the profile's replay.tasks)")
+    ] = None,
+    method: Annotated[
+        list[str] | None,
+        typer.Option(help="touch2robot | contrack | dexmachina | dex-retargeting (repeatable; default all)"),
+    ] = None,
+) -> None:
+    """Execute each method's robot trajectories open loop on the hardware twin (a perturbed MuJoCo rig
+    with TwinTac and FSR models), write robot replay MCAPs next to their glove sessions and ingest
+    them (flow `replay`); a method with no trajectory for a task is skipped with the reason."""
+    _check_profile(profile)
+    layout = _layout(data)
+    result = _run_flow(
+        "flows.replay:replay", dict, profile=profile, data=str(layout.root), tasks=task or None, methods=method or None
+    )
+    _closing(layout, f"replay ({profile})", {"replay": result})
 
 
 @app.command()

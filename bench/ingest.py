@@ -37,7 +37,7 @@ def make_set(target_mb: float) -> list[Path]:
     while total < target_mb:
         demo += 1
         for task in config.tasks:
-            job = RecordingJob("glove_session", task, 1 + demo % 50, 1 + demo // 50)
+            job = RecordingJob(task, 1 + demo % 50, 1 + demo // 50)
             path = OUT / job.file_name
             if not path.exists():
                 write_recording(config, job, OUT, OUT / "groundtruth")

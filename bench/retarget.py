@@ -39,10 +39,10 @@ def main() -> None:
     torch.set_num_threads(1)
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
-        config = SynthConfig(tasks=tuple(args.tasks), subjects=1, demos_per_subject=1, replays_per_task=0)
+        config = SynthConfig(tasks=tuple(args.tasks), subjects=1, demos_per_subject=1)
         motions = []
         for task in args.tasks:
-            path = write_recording(config, RecordingJob("glove_session", task, 1, 1), root / "rec", root / "gt")
+            path = write_recording(config, RecordingJob(task, 1, 1), root / "rec", root / "gt")
             motions.append(load_hand_motion(root / "lake", ingest_file(path, root / "lake").recording_id))
     t0 = time.perf_counter()
     retargeter = Retargeter(LEAP_DEFAULT)

@@ -48,10 +48,10 @@ def main() -> None:
     cfg = load_profile(args.profile).student
     with tempfile.TemporaryDirectory() as tmp:
         root = Path(tmp)
-        synth = SynthConfig(tasks=tuple(args.tasks), subjects=1, demos_per_subject=1, replays_per_task=0)
+        synth = SynthConfig(tasks=tuple(args.tasks), subjects=1, demos_per_subject=1)
         motions = []
         for task in args.tasks:
-            path = write_recording(synth, RecordingJob("glove_session", task, 1, 1), root / "rec", root / "gt")
+            path = write_recording(synth, RecordingJob(task, 1, 1), root / "rec", root / "gt")
             motions.append((task, load_hand_motion(root / "lake", ingest_file(path, root / "lake").recording_id)))
     retargeter = Retargeter(LEAP_DEFAULT)
     torch.manual_seed(0)

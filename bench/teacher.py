@@ -56,9 +56,9 @@ from touch2robot.teachers.train import make_teacher_env, runner_config, torch_th
 def demonstration(task: str, root: Path) -> dict:
     """One ingested, contact-labelled, retargeted glove demonstration of ``task``."""
     layout = DataLayout(root)
-    config = SynthConfig(tasks=(task,), subjects=1, demos_per_subject=1, replays_per_task=0)
+    config = SynthConfig(tasks=(task,), subjects=1, demos_per_subject=1)
     ingest_file(
-        write_recording(config, RecordingJob("glove_session", task, 1, 1), layout.recordings, layout.groundtruth),
+        write_recording(config, RecordingJob(task, 1, 1), layout.recordings, layout.groundtruth),
         layout.lake,
     )
     recording = recording_rows(layout.lake).to_pylist()[0]

@@ -22,8 +22,8 @@ from mujoco import rollout
 
 from touch2robot.sim.config import SimConfig
 from touch2robot.sim.env import CONTROL_SPEC
-from touch2robot.twin import TwinConfig, replay_rollout
-from touch2robot.twin.replay import twin_physics
+from touch2robot.twin.config import TwinConfig
+from touch2robot.twin.replay import replay_rollout, twin_physics
 
 ROOT = Path(__file__).resolve().parents[1]
 

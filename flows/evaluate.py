@@ -10,6 +10,7 @@ from prefect import flow, unmapped
 from tasks import tracking
 from tasks.common import stored
 from tasks.evaluate import (
+    evaluate_fidelity,
     evaluate_ratings,
     evaluate_source,
     log_evaluation,
@@ -19,8 +20,15 @@ from tasks.evaluate import (
 )
 from tasks.ingest import refresh_catalog
 from tasks.runners import ProfileTaskRunner
-from touch2robot.datasets import CONTACTS, file_digest, folder_digest
-from touch2robot.evaluate import REFERENCE_SOURCE, evaluated_sources, ratings_files, source_folders
+from touch2robot.config import load_profile
+from touch2robot.datasets import CONTACTS, RECORDINGS, ROLLOUTS, file_digest, folder_digest
+from touch2robot.evaluate import (
+    FIDELITY_REFERENCE,
+    REFERENCE_SOURCE,
+    evaluated_sources,
+    ratings_files,
+    source_folders,
+)
 from touch2robot.metrics import ALL
 from touch2robot.settings import DataLayout
 
@@ -29,8 +37,9 @@ from touch2robot.settings import DataLayout
 def evaluate(
     profile: str = "smoke", data: str | None = None, ratings: str | None = None, reference: str = REFERENCE_SOURCE
 ) -> dict:
-    """Score every contact source in the lake other than ``reference`` (all its methods and tasks)
-    and the user-study ratings (``ratings``: a CSV or a folder of them, default
+    """Score every contact source in the lake other than ``reference`` (all its methods and tasks:
+    preference alignment), every replayed trajectory's contacts against those measured on its replay
+    (tactile fidelity, reference ``real``), and the user-study ratings (``ratings``: a CSV or a folder of them, default
     ``<data>/recordings/user_study``); rewrite the evaluation tables, refresh the catalog, log
     MLflow runs. ``profile`` labels the runs."""
     layout = DataLayout.from_env(data)
@@ -41,6 +50,13 @@ def evaluate(
         f.result()
         for f in stored(evaluate_source, layout.results).map(unmapped(lake), sources, unmapped(reference), digests)
     ]
+    fidelity_folders = [CONTACTS.folder(layout.lake) / f"source={FIDELITY_REFERENCE}", ROLLOUTS.folder(layout.lake)]
+    fidelity = stored(evaluate_fidelity, layout.results).submit(
+        lake,
+        load_profile(profile).teacher.sim.contact_threshold_n,
+        folder_digest([*fidelity_folders, RECORDINGS.folder(layout.lake)]),
+    )
+    per_source.append(fidelity.result())
     paths = [str(p) for p in ratings_files(Path(ratings) if ratings else layout.user_study)]
     shas = [file_digest(p) for p in paths]
     studies = [f.result() for f in stored(evaluate_ratings, layout.results).map(paths, shas)]
@@ -66,7 +82,11 @@ def evaluate(
                 str(layout.root), profile, path, sha, study["rows"], uri
             )
     publish_artefacts(profile, metrics, summaries, studies, runs)
-    overall = {f"{r['source']}/{r['method']}": r["f1"] for r in metrics if r["task"] == ALL and r["region"] == ALL}
+    overall = {
+        ("" if r["reference_source"] == reference else "fidelity:") + f"{r['source']}/{r['method']}": r["f1"]
+        for r in metrics
+        if r["task"] == ALL and r["region"] == ALL
+    }
     print(f"evaluate: sources {sources}, overall F1 {overall}, {len(studies)} ratings file(s) -> {layout.catalog}")
     skipped = {Path(s["path"]).name: s["error"] for s in studies if s["error"]}
     return {

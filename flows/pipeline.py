@@ -9,6 +9,7 @@ from prefect import flow
 from flows.evaluate import evaluate
 from flows.ingest import ingest
 from flows.policy import policy
+from flows.replay import replay
 from flows.retarget import retarget
 from flows.student import student
 from flows.synth import synth
@@ -20,7 +21,8 @@ from schemas.vocabulary import Origin
 def pipeline(profile: str = "smoke", data: str | None = None, synthesize: bool = True) -> dict:
     """Simulated demonstrator (unless ``synthesize`` is false: bring your own recordings
     in ``<data>/recordings``) -> ingest and contacts -> kinematic retargeting -> teachers and
-    their rollouts -> the distilled student and its reconstructions -> contact evaluation ->
+    their rollouts -> the distilled student and its reconstructions -> every method's trajectories
+    replayed on the hardware twin and ingested -> contact evaluation ->
     robot-demonstration datasets, Diffusion Policies and their closed-loop success."""
     if synthesize:
         synth(profile=profile, data=data)
@@ -28,6 +30,7 @@ def pipeline(profile: str = "smoke", data: str | None = None, synthesize: bool =
     retargeted = retarget(profile=profile, data=data)
     taught = teachers(profile=profile, data=data)
     distilled = student(profile=profile, data=data)
+    replayed = replay(profile=profile, data=data)
     evaluated = evaluate(profile=profile, data=data)
     policies = policy(profile=profile, data=data)
     return {
@@ -35,6 +38,7 @@ def pipeline(profile: str = "smoke", data: str | None = None, synthesize: bool =
         "retarget": retargeted,
         "teachers": taught,
         "student": distilled,
+        "replay": replayed,
         "evaluate": evaluated,
         "policy": policies,
     }
@@ -79,6 +83,10 @@ def headline(results: dict) -> list[tuple[str, str]]:
             figures += f", joint error {joint:.4f} rad (kinematic {kinematic:.4f})"
             figures += f", contact F1 {fmean(r['contact_f1'] for r in rows):.3f}"
         lines.append((f"student: {trained['variant']}", figures))
+    if replayed := results.get("replay"):
+        figures = f"{replayed['replayed']} replayed on the twin, {replayed['skipped']} skipped"
+        figures += f", {replayed['failed']} failed"
+        lines.append(("replay", figures))
     if f1_by_source := (results.get("evaluate") or {}).get("f1"):
         lines.append(("evaluate", "contact F1 " + ", ".join(f"{k} {v:.3f}" for k, v in f1_by_source.items())))
     for row in results.get("policy") or []:

@@ -63,6 +63,7 @@ recordings = pa.schema(
         pa.field("method", pa.string()),
         pa.field("reference_recording", pa.string()),
         pa.field("calibration_recording", pa.string()),
+        pa.field("trajectory", pa.string()),
         pa.field("start_time_s", pa.float64()),
         pa.field("end_time_s", pa.float64()),
         pa.field("duration_s", pa.float64()),
@@ -85,6 +86,7 @@ recordings_doc = TableDoc(
         "method": "replay: the retargeting method whose commands the robot replayed",
         "reference_recording": "replay: file name of the glove session it replays",
         "calibration_recording": "replay: file name of its TwinTac calibration",
+        "trajectory": "replay: the robot trajectory executed (a rollouts rollout_id); NULL when the rig does not say",
         "start_time_s": "first message's timestamp (s)",
         "end_time_s": "last message's timestamp (s)",
         "duration_s": "end_time_s - start_time_s",
@@ -622,6 +624,48 @@ student_predictions_doc = TableDoc(
     },
 )
 
+# --- Replays on the robot (flow `replay`; rewritten whole, one file per task x method) ---------
+# Every trajectory the replay stage was asked to execute on the hardware twin (or a lab's rig), with
+# what it wrote, or why nothing was: a method with no trajectory for a task is a row, not a crash.
+# Files: lake/replays/<task>__<method>.parquet
+replays = pa.schema(
+    [
+        pa.field("task", pa.string(), nullable=False),
+        pa.field("method", pa.string(), nullable=False),
+        pa.field("origin", pa.string()),
+        pa.field("trajectory", pa.string()),
+        pa.field("reference_id", pa.string()),
+        pa.field("replay_file", pa.string()),
+        pa.field("calibration_file", pa.string()),
+        pa.field("status", pa.string(), nullable=False),
+        pa.field("reason", pa.string(), nullable=False),
+        pa.field("rig", pa.string(), nullable=False),
+        pa.field("duration_s", pa.float64()),
+        pa.field("peak_force", pa.list_(pa.float32(), 8)),
+        pa.field("contact_fraction", pa.list_(pa.float32(), 8)),
+        pa.field("perturbation", pa.string()),
+    ]
+)
+replays_doc = TableDoc(
+    "robot replays the replay stage executed (or skipped), per task x method x demonstration",
+    {
+        "task": "pick | rotate | wipe | drawer",
+        "method": "the retargeting method whose trajectory was executed",
+        "origin": "teacher | kinematic | student: which of the method's rollouts; NULL when skipped",
+        "trajectory": "the rollouts rollout_id executed; NULL when skipped",
+        "reference_id": "the glove recording the trajectory follows; NULL when skipped",
+        "replay_file": "the robot_replay MCAP written (file name); NULL when skipped",
+        "calibration_file": "its unloaded TwinTac calibration MCAP (file name); NULL when skipped",
+        "status": "replayed | skipped | failed",
+        "reason": "why skipped or failed (empty when replayed)",
+        "rig": "what executed it: twin (the MuJoCo hardware twin)",
+        "duration_s": "replay length (s)",
+        "peak_force": "largest contact force measured per region T1..T4, P1..P4 (N)",
+        "contact_fraction": "share of the replay's 100 Hz samples with force > 0.5 N per region",
+        "perturbation": "JSON: the twin's hardware draw for this replay (friction, mass, gains, latency, ...)",
+    },
+)
+
 SCHEMAS: dict[str, pa.Schema] = {
     "recordings": recordings,
     "taxels": taxels,
@@ -644,6 +688,7 @@ SCHEMAS: dict[str, pa.Schema] = {
     "policy_eval": policy_eval,
     "student_dataset": student_dataset,
     "student_predictions": student_predictions,
+    "replays": replays,
 }
 
 DOCS: dict[str, TableDoc] = {
@@ -668,6 +713,7 @@ DOCS: dict[str, TableDoc] = {
     "policy_eval": policy_eval_doc,
     "student_dataset": student_dataset_doc,
     "student_predictions": student_predictions_doc,
+    "replays": replays_doc,
 }
 
 # Hive partition columns per table (directory levels under lake/<table>/).

@@ -79,6 +79,59 @@ def smoke_data(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return layout.root
 
 
+def write_twin_replays(root: Path, method: str = "touch2robot", twin=None, steps: int = 40) -> list[Path]:
+    """Robot replays on the hardware twin, one per glove session under ``root/recordings``: a scripted grasp
+    (``scripted_rollout_rows``) executed on the twin (default hardware draw unless ``twin`` is given), written
+    next to its glove session with its calibration, named and linked as the replay stage does; the rollouts
+    go into ``root/lake/rollouts`` (origin teacher), so that tactile fidelity can pair them. Returns the
+    replay and calibration paths."""
+    import pyarrow as pa
+
+    from schemas.tables import SCHEMAS
+    from touch2robot import datasets
+    from touch2robot.sim.config import SimConfig
+    from touch2robot.twin.config import TwinConfig
+    from touch2robot.twin.replay import replay_rollout
+
+    written = []
+    by_task: dict[str, list[pa.Table]] = {}
+    for k, glove in enumerate(sorted((root / "recordings").glob("*_glove.mcap"))):
+        task = glove.name.split("_")[0]
+        rows = scripted_rollout_rows(task, method, 1, steps, seed=k)
+        rid = f"teacher-{method}-{task}-{len(by_task.get(task, [])):03d}"
+        rows = rows.set_column(rows.schema.get_field_index("rollout_id"), "rollout_id", pa.array([rid] * len(rows)))
+        by_task.setdefault(task, []).append(rows.select(SCHEMAS["rollouts"].names).cast(SCHEMAS["rollouts"]))
+        stem = glove.name.removesuffix("_glove.mcap") + f"_{method}"
+        replay, calibration = glove.with_name(f"{stem}_replay.mcap"), glove.with_name(f"{stem}_calib.mcap")
+        metadata = {
+            "task": task,
+            "subject": glove.name.split("_")[1],
+            "method": method,
+            "reference_recording": glove.name,
+            "calibration_recording": calibration.name,
+            "trajectory": rid,
+            "rig": "twin",
+        }
+        replay_rollout(rows, SimConfig(threads=1), twin or TwinConfig(), (k,), replay, calibration, metadata)
+        written += [replay, calibration]
+    for task, tables in by_task.items():
+        key = datasets.RolloutsKey("teacher", task)
+        datasets.ROLLOUTS.write(root / "lake", key, pa.concat_tables(tables), method=method)
+    return written
+
+
+@pytest.fixture(scope="session")
+def replay_data(smoke_data: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The smoke recordings plus a robot replay of a scripted grasp on the hardware twin per glove session
+    (``write_twin_replays``). Tests must copy it before changing it."""
+    import shutil
+
+    root = tmp_path_factory.mktemp("replays") / "data"
+    shutil.copytree(smoke_data, root)
+    write_twin_replays(root)
+    return root
+
+
 @pytest.fixture(scope="session")
 def demo_lake(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A data folder with one glove demonstration per task, ingested, with human contacts and
@@ -95,11 +148,11 @@ def demo_lake(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from touch2robot.synth.generate import RecordingJob, write_recording
 
     layout = DataLayout(tmp_path_factory.mktemp("demos") / "data")
-    config = SynthConfig(subjects=1, demos_per_subject=1, replays_per_task=0)
+    config = SynthConfig(subjects=1, demos_per_subject=1)
     retargeter = Retargeter(LEAP_DEFAULT)
     for task in config.tasks:
         ingest_file(
-            write_recording(config, RecordingJob("glove_session", task, 1, 1), layout.recordings, layout.groundtruth),
+            write_recording(config, RecordingJob(task, 1, 1), layout.recordings, layout.groundtruth),
             layout.lake,
         )
     for recording in recording_rows(layout.lake).to_pylist():
@@ -193,6 +246,18 @@ def scripted_rollout_rows(task: str, method: str, n: int, steps: int, origin: st
             "reference_joints": [r.tolist() for r in rows["joint_target"]],
         }
     )
+
+
+def rollouts_following(task: str, method: str, origin: str, reference_id: str, n: int = 2):
+    """``scripted_rollout_rows`` of a method that follow one glove session, typed as the ``rollouts`` table."""
+    import pyarrow as pa
+
+    from schemas.tables import SCHEMAS
+
+    rows = scripted_rollout_rows(task, method, n, 4, origin=origin)
+    column = rows.schema.get_field_index("reference_id")
+    rows = rows.set_column(column, "reference_id", pa.array([reference_id] * len(rows)))
+    return rows.select(SCHEMAS["rollouts"].names).cast(SCHEMAS["rollouts"])
 
 
 def lerobot_frame(dataset, index: int) -> dict:

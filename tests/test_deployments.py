@@ -139,10 +139,8 @@ def servers(tmp_path: Path) -> Iterator[dict]:
 
 
 def tiny_recordings(data: Path) -> list[Path]:
-    """One pick demonstration, its robot replay and the replay's calibration."""
-    config = SynthConfig(
-        tasks=("pick",), subjects=1, demos_per_subject=1, replay_methods=("touch2robot",), replays_per_task=1
-    )
+    """One pick demonstration (a glove session)."""
+    config = SynthConfig(tasks=("pick",), subjects=1, demos_per_subject=1)
     return [write_recording(config, job, data / "recordings", data / "groundtruth") for job in plan(config)]
 
 

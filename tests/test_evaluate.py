@@ -13,6 +13,7 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
+from conftest import write_twin_replays
 
 from schemas.tables import SCHEMAS
 from touch2robot import evaluate as ev
@@ -261,13 +262,15 @@ def _counts(data: Path) -> dict[str, int]:
 
 @pytest.fixture(scope="module")
 def evaluated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
-    """A smoke pipeline output (synth + ingest), then one `evaluate` flow run on it."""
+    """The smoke demonstrator's recordings, a scripted grasp replayed on the hardware twin per glove session
+    (``write_twin_replays``) and ingested, then one `evaluate` flow run on it."""
     from flows.evaluate import evaluate
     from flows.ingest import ingest
     from flows.synth import synth
 
     data = tmp_path_factory.mktemp("evaluate") / "data"
     synth(profile="smoke", data=str(data))
+    write_twin_replays(data)
     ingest(profile="smoke", data=str(data))
     return data, evaluate(profile="smoke", data=str(data))
 
@@ -275,11 +278,12 @@ def evaluated(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
 def test_flow_writes_sane_tables(evaluated: tuple[Path, dict]) -> None:
     data, result = evaluated
     assert result["sources"] == ["real"] and result["ratings"] == ["ratings_SYNTHETIC.csv"]
-    m = _table(data, "SELECT * FROM contact_metrics WHERE region = '*'")
+    m = _table(data, "SELECT * FROM contact_metrics WHERE region = '*' AND reference_source = 'human'")
     overall = _row(m, source="real", method="touch2robot", task=ALL)
-    assert overall.f1 > 0.8 and overall.precision > 0.8 and overall.fpr < 0.1
+    # a scripted grasp follows no human preference: the figures are what they are, but well defined
+    assert overall.n_sequences == 4 and 0 <= overall.f1 <= 1 and 0 <= overall.fpr <= 1
     assert set(m["task"]) == {"pick", "rotate", "wipe", "drawer", ALL}
-    o = _table(data, "SELECT * FROM onset_errors")
+    o = _table(data, "SELECT * FROM onset_errors WHERE reference_source = 'human'")
     pairs = o[o["sequence_id"] != ALL]
     assert len(pairs) == 4 * 8 and pairs["via_time_map"].all()  # 4 replays x 8 regions, all mapped
     summary = o[(o["sequence_id"] == ALL) & (o["region"] == ALL) & (o["task"] != ALL)]
@@ -296,6 +300,7 @@ def test_flow_tables_equal_the_sql_macros(evaluated: tuple[Path, dict]) -> None:
     data, _ = evaluated
     keys = ["method", "task", "region"]
     python = _table(data, "SELECT * FROM contact_metrics WHERE source = 'real'").sort_values(keys, ignore_index=True)
+    assert (python["reference_source"] == "human").all()
     sql = _table(data, "SELECT * FROM contact_score_slices('human', 'real') WHERE subject = '*'").sort_values(
         keys, ignore_index=True
     )
@@ -313,7 +318,13 @@ def test_flow_logs_mlflow_runs_and_figures(evaluated: tuple[Path, dict]) -> None
     runs = _evaluate_runs(data)
     method_runs = runs[runs["tags.kind"] == "method"]
     assert set(method_runs["params.task"]) == {"pick", "rotate", "wipe", "drawer", ALL}
-    assert set(method_runs["params.source"]) == {"real"} and set(method_runs["params.method"]) == {"touch2robot"}
+    fidelity = method_runs["tags.reference_source"] == "real"
+    assert set(method_runs[~fidelity]["params.source"]) == {"real"} and set(method_runs["params.method"]) == {
+        "touch2robot"
+    }
+    assert set(method_runs[fidelity]["params.source"]) == {"sim"}
+    assert method_runs[fidelity]["tags.mlflow.runName"].str.startswith("fidelity/sim/touch2robot/").all()
+    method_runs = method_runs[~fidelity]
     for column in ("precision", "recall", "f1", "fpr", "onset_error_ms", "onset_pairs"):
         assert method_runs[f"metrics.{column}"].notna().all(), column
     study = runs[runs["tags.kind"] == "user_study"]
@@ -326,8 +337,21 @@ def test_flow_logs_mlflow_runs_and_figures(evaluated: tuple[Path, dict]) -> None
     pick = method_runs[method_runs["params.task"] == "pick"]["run_id"].iloc[0]
     assert next(a.path for a in client.list_artifacts(pick, "contact_timelines")).endswith(".png")
     summary = runs[runs["tags.kind"] == "summary"]["run_id"].iloc[0]
-    assert "metrics_by_method.png" in {a.path for a in client.list_artifacts(summary)}
+    assert {"metrics_by_method.png", "fidelity_by_method.png"} <= {a.path for a in client.list_artifacts(summary)}
     assert set(result["runs"].values()) == set(runs["run_id"])
+
+
+def test_flow_scores_tactile_fidelity_against_the_replays(evaluated: tuple[Path, dict]) -> None:
+    """Tactile fidelity: each replayed trajectory's simulated contacts against those measured on its replay."""
+    data, result = evaluated
+    m = _table(data, "SELECT * FROM contact_metrics WHERE reference_source = 'real' AND region = '*'")
+    assert set(m["source"]) == {"sim"} and set(m["method"]) == {"touch2robot"}
+    overall = _row(m, task=ALL)
+    assert overall.n_sequences == 4 and overall.f1 > 0.7, overall
+    assert result["f1"]["fidelity:sim/touch2robot"] == pytest.approx(overall.f1)
+    o = _table(data, "SELECT * FROM onset_errors WHERE reference_source = 'real' AND sequence_id <> '*'")
+    assert len(o) == 4 * 8 and not o["via_time_map"].any()  # both sides already on the reference clock
+    assert (o[o["valid"]]["error_ms"] < 500).all()
 
 
 def test_flow_rerun_replaces_and_follows_the_sources(evaluated: tuple[Path, dict]) -> None:
@@ -359,13 +383,15 @@ def test_flow_rerun_replaces_and_follows_the_sources(evaluated: tuple[Path, dict
             {"source": "sim", "task": str(task)},
         )
     evaluate(profile="smoke", data=str(data))
-    m = _table(data, "SELECT * FROM contact_metrics")
+    m = _table(data, "SELECT * FROM contact_metrics WHERE reference_source = 'human'")
     count_cols = ["task", "region", "tp", "fp", "fn", "tn"]
     pd.testing.assert_frame_equal(
         m[m["source"] == "sim"][count_cols].sort_values(["task", "region"], ignore_index=True),
         m[m["source"] == "real"][count_cols].sort_values(["task", "region"], ignore_index=True),
     )
-    o = _table(data, "SELECT * FROM onset_errors WHERE source = 'sim' AND sequence_id <> '*'")
+    o = _table(
+        data, "SELECT * FROM onset_errors WHERE source = 'sim' AND sequence_id <> '*' AND reference_source = 'human'"
+    )
     assert len(o) == 4 * 8 and not o["via_time_map"].any()
     runs = _evaluate_runs(data)
     assert {"sim/contrack/all", "real/touch2robot/all"} <= set(runs["tags.mlflow.runName"])

@@ -168,11 +168,13 @@ def test_joint_order_follows_the_contract(tmp_path: Path) -> None:
     np.testing.assert_array_equal(joints["position"][0].as_py(), (np.arange(20.0) / 16)[::-1])
 
 
-def test_replays_link_to_calibration_and_reference(smoke_data: Path, tmp_path: Path) -> None:
+def test_replays_link_to_calibration_and_reference(replay_data: Path, tmp_path: Path) -> None:
     lake = tmp_path / "lake"
-    for p in sorted((smoke_data / "recordings").glob("pick_*.mcap")):
+    for p in sorted((replay_data / "recordings").glob("pick_*.mcap")):
         assert ingest_file(p, lake).status == "ingested"
     gloves, links, problems = link_replays(recording_rows(lake).to_pylist())
     assert len(gloves) == 1 and len(links) == 1 and problems == []
     reference = links[0].reference
     assert reference is not None and reference["recording_id"] == gloves[0]["recording_id"]
+    # the trajectory the replay executed is on its recordings row: tactile fidelity pairs them by it
+    assert links[0].replay["trajectory"] == "teacher-touch2robot-pick-000" and gloves[0]["trajectory"] is None

@@ -158,15 +158,16 @@ def test_a_hostile_subject_is_quarantined(subject: str, tmp_path: Path) -> None:
     assert result.status == "quarantined" and "metadata 'subject'" in result.reason
 
 
-def test_replay_metadata_names_a_known_method_and_plain_file_names(smoke_data: Path, tmp_path: Path) -> None:
+def test_replay_metadata_names_a_known_method_and_plain_file_names(replay_data: Path, tmp_path: Path) -> None:
     from touch2robot.ingest.reader import read_recording
 
-    replay = next((smoke_data / "recordings").glob("pick_*_replay.mcap"))
+    replay = next((replay_data / "recordings").glob("pick_*_replay.mcap"))
     meta = read_recording(replay).metadata
     for key, value, expected in (
         ("method", "touch2robo", "metadata 'method'"),
         ("calibration_recording", "../other/calib.mcap", "metadata 'calibration_recording'"),
         ("schema_version", "9", "metadata 'schema_version'"),
+        ("trajectory", "../../etc/passwd", "metadata 'trajectory'"),
     ):
         bad = tmp_path / f"{key}.mcap"
         _copy_with_metadata(replay, bad, {**meta, key: value})
@@ -221,8 +222,8 @@ def test_implausible_values_are_quarantined_naming_topic_message_and_value(case:
     assert _ids_in_lake(tmp_path / "lake") == set()
 
 
-def test_the_demonstrators_recordings_are_plausible(smoke_data: Path, tmp_path: Path) -> None:
-    for path in sorted((smoke_data / "recordings").glob("*.mcap")):
+def test_the_demonstrators_and_the_twins_recordings_are_plausible(replay_data: Path, tmp_path: Path) -> None:
+    for path in sorted((replay_data / "recordings").glob("*.mcap")):
         result = ingest_file(path, tmp_path / "lake")
         assert result.status == "ingested", (path.name, result.reason)
 
@@ -327,9 +328,9 @@ def test_value_mutations_never_crash_and_never_store_an_implausible_value(
 @settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(data=st.data())
 def test_byte_mutations_of_a_real_recording_never_crash_and_leave_nothing_of_a_bad_file(
-    smoke_data: Path, tmp_path: Path, data: st.DataObject
+    replay_data: Path, tmp_path: Path, data: st.DataObject
 ) -> None:
-    original = next((smoke_data / "recordings").glob("pick_*_calib.mcap")).read_bytes()
+    original = next((replay_data / "recordings").glob("pick_*_calib.mcap")).read_bytes()
     blob = bytearray(original)
     for _ in range(data.draw(st.integers(1, 4), label="mutations")):
         op = data.draw(st.sampled_from(["flip", "truncate", "insert", "delete"]), label="op")

@@ -46,9 +46,9 @@ def test_a_changed_stream_file_is_refused_by_the_refresh_and_rebuilt_by_ingest(s
     catalog.refresh(layout)
 
 
-def test_a_file_no_stage_wrote_is_refused(smoke_data: Path, tmp_path: Path) -> None:
+def test_a_file_no_stage_wrote_is_refused(replay_data: Path, tmp_path: Path) -> None:
     layout = DataLayout(tmp_path / "data")
-    ingest_file(next((smoke_data / "recordings").glob("pick_*_calib.mcap")), layout.lake)
+    ingest_file(next((replay_data / "recordings").glob("pick_*_calib.mcap")), layout.lake)
     fake = layout.lake / "recordings" / "x.parquet"
     pq.write_table(pq.read_table(lake_io.files(layout.lake, "recordings")[0]), fake)
     with pytest.raises(lake_io.LakeFileChanged, match=r"recordings/x\.parquet: no producer digest"):

@@ -115,7 +115,7 @@ def kill_survivors(data: Path) -> None:
 
 def smoke_recordings(data: Path) -> list[Path]:
     """The smoke profile's recordings, written by the library (no flow)."""
-    config = SynthConfig(subjects=1, demos_per_subject=1, replay_methods=("touch2robot",), replays_per_task=1)
+    config = SynthConfig(subjects=1, demos_per_subject=1)
     return [write_recording(config, job, data / "recordings", data / "groundtruth") for job in plan(config)]
 
 

@@ -52,9 +52,9 @@ TASKS = ("pick", "rotate")
 
 def _write_and_ingest(root: Path, tasks: tuple[str, ...], pace: float = 1.0) -> DataLayout:
     layout = DataLayout(root)
-    config = SynthConfig(tasks=tasks, subjects=1, demos_per_subject=1, replays_per_task=0, pace=pace)
+    config = SynthConfig(tasks=tasks, subjects=1, demos_per_subject=1, pace=pace)
     for task in tasks:
-        path = write_recording(config, RecordingJob("glove_session", task, 1, 1), layout.recordings, layout.groundtruth)
+        path = write_recording(config, RecordingJob(task, 1, 1), layout.recordings, layout.groundtruth)
         assert ingest_file(path, layout.lake).status == "ingested"
     return layout
 

@@ -94,7 +94,7 @@ from touch2robot.synth import generate
 from touch2robot.synth.config import SynthConfig
 from touch2robot.teachers.config import TeacherConfig
 
-config = SynthConfig(tasks=("slide",), subjects=1, demos_per_subject=1, replays_per_task=0)
+config = SynthConfig(tasks=("slide",), subjects=1, demos_per_subject=1)
 job = generate.plan(config)[0]
 generate.write_recording(config, job, data / "recordings", data / "groundtruth")
 _, demo, _ = generate._demonstration(config, job)

@@ -25,8 +25,9 @@ from touch2robot.sim.config import SimConfig
 from touch2robot.sim.env import CONTROL_SPEC
 from touch2robot.sim.guard import LostPhysicsError
 from touch2robot.sim.scene import home_joint_targets
-from touch2robot.twin import ReplayOutcome, TwinConfig, replay_rollout, streams
-from touch2robot.twin.replay import _Physics, twin_physics
+from touch2robot.twin import streams
+from touch2robot.twin.config import TwinConfig
+from touch2robot.twin.replay import ReplayOutcome, _Physics, replay_rollout, twin_physics
 
 SIM = SimConfig(threads=1)
 TASKS = ("pick", "drawer")

@@ -19,6 +19,8 @@ from touch2robot.runner_config import RunnerConfig
 from touch2robot.student.config import StudentConfig
 from touch2robot.synth.config import SynthConfig
 from touch2robot.teachers.config import TeacherConfig
+from touch2robot.twin.config import TwinConfig
+from touch2robot.twin.plan import ReplayConfig
 
 BUILTIN_PROFILES = ("smoke", "local", "paper")
 
@@ -43,6 +45,8 @@ class Profile(BaseModel):
     teacher: TeacherConfig = TeacherConfig()
     student: StudentConfig = StudentConfig()
     policy: PolicyConfig = PolicyConfig()
+    replay: ReplayConfig = ReplayConfig()
+    twin: TwinConfig = TwinConfig()
 
     @model_validator(mode="after")
     def _one_training_per_process(self) -> Profile:

@@ -269,6 +269,7 @@ EVALUATION_IDS = {
     "contact_metrics": KeyedIdFormat(("source", "method")),
     "onset_errors": KeyedIdFormat(("source", "method")),
     "user_study": KeyedIdFormat(("ratings_file",)),
+    "replays": KeyedIdFormat(("task", "method")),
 }
 
 LAKE: dict[str, LakeTable] = {

@@ -23,12 +23,15 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.dataset as ds
+import pyarrow.parquet as pq
 
 from schemas.tables import PARTITIONS, ROBOT_REGIONS, SCHEMAS
-from schemas.vocabulary import Source
+from schemas.vocabulary import Origin, RecordingKind, RecordingStatus, Source
 from touch2robot import lake as lake_io
+from touch2robot.contacts import long_rows
 from touch2robot.datasets import LAKE, folder_digest
 from touch2robot.datasets import safe_file_id as file_id
+from touch2robot.ingest import recording_rows
 from touch2robot.metrics import ALL, COUNT_COLUMNS, contact_counts_long, contact_scores_table, onset_error_ms_long
 from touch2robot.stats import CONDITIONS, QUESTIONS, user_study
 
@@ -39,9 +42,12 @@ if TYPE_CHECKING:
 __all__ = [
     "ALL",
     "CONTACT_COLUMNS",
+    "FIDELITY_REFERENCE",
     "REFERENCE_SOURCE",
     "contact_metrics_table",
     "evaluated_sources",
+    "fidelity_contacts",
+    "fidelity_replays",
     "file_id",
     "folder_digest",
     "is_synthetic",
@@ -180,6 +186,68 @@ def contact_metrics_table(contacts: pd.DataFrame, eval_source: str, reference: s
         n_sequences=table["n_sequences"].fillna(0).astype(np.int64),
     )
     return table.sort_values(["method", "task", "region"], ignore_index=True)[names]
+
+
+# --------------------------------------------------------------------------- tactile fidelity
+
+FIDELITY_REFERENCE = Source.REAL
+"""The reference of tactile fidelity: the contacts measured when a method's trajectory is replayed on the robot."""
+
+
+def fidelity_replays(lake: Path) -> pd.DataFrame:
+    """The ingested robot replays that name the trajectory they executed (recording_id, method, task, subject,
+    trajectory): the pairs tactile fidelity scores. A replay that does not name one has nothing to score."""
+    rows = recording_rows(lake).to_pandas()
+    keep = (rows["status"] == RecordingStatus.INGESTED) & (rows["kind"] == RecordingKind.ROBOT_REPLAY)
+    rows = rows[keep & rows["trajectory"].notna() & (rows["trajectory"] != "")]
+    return rows[["recording_id", "method", "task", "subject", "trajectory"]].reset_index(drop=True)
+
+
+def fidelity_contacts(lake: Path, contact_threshold_n: float) -> pd.DataFrame:
+    """Long contacts rows for tactile fidelity, keyed by replay: per robot replay naming its trajectory, the
+    contacts measured on it (source ``real``) and those its trajectory makes on the target hand in simulation
+    (the ``rollouts`` row's region force > ``contact_threshold_n``, the sim contacts' rule; source ``sim`` for a
+    teacher's or the kinematic trajectory, ``reconstructed`` for the student's). Both sides carry the replay
+    as ``sequence_id`` and ``reference_id``, so a trajectory replayed twice is scored twice. The measured side
+    keeps the first sample of each run of equal ``t_ref`` (before the first command and after the last one
+    the replay's clock holds), so that it is a strictly increasing reference timeline."""
+    names = list(CONTACT_COLUMNS)
+    replays = fidelity_replays(lake)
+    if replays.empty:
+        return pd.DataFrame({c: pd.Series(dtype=object) for c in names})
+    real = read_contacts(lake, [FIDELITY_REFERENCE])
+    real = real[real["sequence_id"].isin(set(replays["recording_id"]))].sort_values(["sequence_id", "region", "t"])
+    real = real.drop_duplicates(["sequence_id", "region", "t_ref"]).assign(reference_id=lambda f: f["sequence_id"])
+    wanted = set(replays["trajectory"])
+    columns = ["rollout_id", "origin", "t", "t_ref", "region_force"]
+    tables = [pq.read_table(f, columns=columns) for f in lake_io.files(lake, "rollouts")]
+    tables = [t.filter(pc.field("rollout_id").isin(sorted(wanted))) for t in tables]
+    parts = [real]
+    if tables:
+        rollouts = pa.concat_tables(tables).to_pandas()
+        by_id = {rid: g for rid, g in rollouts.groupby("rollout_id", sort=False)}
+        for replay in replays.to_dict("records"):
+            rows = by_id.get(replay["trajectory"])
+            if rows is None:
+                continue
+            force = np.stack(rows["region_force"].to_numpy())
+            origin = rows["origin"].iloc[0]
+            parts.append(
+                long_rows(
+                    source=Source.RECONSTRUCTED if origin == Origin.STUDENT else Source.SIM,
+                    method=str(replay["method"]),
+                    task=str(replay["task"]),
+                    subject=str(replay["subject"]),
+                    sequence_id=str(replay["recording_id"]),
+                    reference_id=str(replay["recording_id"]),
+                    t=rows["t"].to_numpy(),
+                    t_ref=rows["t_ref"].to_numpy(),
+                    regions=ROBOT_REGIONS,
+                    contact=force > contact_threshold_n,
+                    value=force,
+                ).to_pandas()[names]
+            )
+    return pd.concat(parts, ignore_index=True)[names]
 
 
 # --------------------------------------------------------------------------- onset errors

@@ -20,7 +20,15 @@ from mcap.records import Channel, DataEnd, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
 from schemas import plausibility as plaus
-from schemas.messages import MESSAGE_ENCODING, METADATA_KEYS, METADATA_NAME, SCHEMA_VERSION, TOPICS_BY_KIND, Topic
+from schemas.messages import (
+    MESSAGE_ENCODING,
+    METADATA_KEYS,
+    METADATA_NAME,
+    OPTIONAL_METADATA_KEYS,
+    SCHEMA_VERSION,
+    TOPICS_BY_KIND,
+    Topic,
+)
 from schemas.vocabulary import Method
 from touch2robot.recording.cdr import Batch, CdrError, decode_batch
 from touch2robot.scenes import TASKS
@@ -185,6 +193,9 @@ def _check_metadata(path: Path, kind: str, metadata: dict[str, str]) -> None:
     for key in ("reference_recording", "calibration_recording"):
         if key in METADATA_KEYS[kind] and not plaus.FILE_NAME_PATTERN.fullmatch(metadata[key]):
             refuse(key, "the plain file name of a recording in the same folder")
+    trajectory = metadata.get("trajectory")
+    if "trajectory" in OPTIONAL_METADATA_KEYS[kind] and trajectory and not plaus.NAME_PATTERN.fullmatch(trajectory):
+        refuse("trajectory", "a rollout id (letters, digits, '_', '.', '-'; at most 64)")
 
 
 def _check_plausible(path: Path, topic: Topic, name: str, values: np.ndarray) -> None:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from schemas.vocabulary import Method
 from touch2robot.scenes import TASKS
 
 
@@ -18,11 +17,6 @@ class SynthConfig(BaseModel):
     tasks: tuple[str, ...] = TASKS
     subjects: int = Field(default=3, ge=1)
     demos_per_subject: int = Field(default=10, ge=1)
-    replay_methods: tuple[str, ...] = (Method.TOUCH2ROBOT, Method.DEX_RETARGETING)
-    replays_per_task: int = Field(
-        default=2, ge=0, description="glove sessions per task replayed on the robot, per method"
-    )
     pace: float = Field(
         default=1.0, gt=0, description="time stretch of every scripted motion (longer recordings when > 1)"
     )
-    calibration_s: float = Field(default=5.0, gt=0)

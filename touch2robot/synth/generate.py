@@ -1,12 +1,11 @@
-"""The simulated demonstrator: writes glove sessions, robot replays and TwinTac
-calibrations as MCAP files exactly as the rig would, plus ground truth kept apart
-(``<data>/groundtruth``, read only by tests)."""
+"""The simulated demonstrator: writes glove sessions as MCAP files exactly as the rig would, plus
+ground truth kept apart (``<data>/groundtruth``, read only by tests). Robot replays are not its
+business: they come from executing each method's trajectory on the hardware twin (flow ``replay``)."""
 
 from __future__ import annotations
 
 import os
 import zlib
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -15,16 +14,15 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from schemas.glove import GLOVE_JOINT_NAMES, region_taxels
-from schemas.messages import LEAP_JOINT_NAMES
-from schemas.tables import HUMAN_REGIONS, ROBOT_REGIONS
-from schemas.vocabulary import Method, RecordingKind
+from schemas.tables import HUMAN_REGIONS
+from schemas.vocabulary import RecordingKind
 from touch2robot import geometry, scenes
 from touch2robot.recording import cdr
 from touch2robot.recording.writer import RecordingWriter
 from touch2robot.synth.config import SynthConfig
 from touch2robot.synth.hand import HumanHand
 from touch2robot.synth.motion import Scene, Trajectory, taxel_forces_along
-from touch2robot.synth.sensors import TwinTac, fsr_readings, glove_readings
+from touch2robot.synth.sensors import glove_readings
 
 EPOCH_NS = 1_767_225_600 * 10**9  # 2026-01-01T00:00:00Z: recordings start from here
 CONTACT_N = 0.5
@@ -33,24 +31,15 @@ _REGION_IDX = {r: region_taxels(r) for r in HUMAN_REGIONS}
 
 @dataclass(frozen=True)
 class RecordingJob:
-    """One file to write. Glove jobs stand alone; replay and calibration jobs name the
-    glove demonstration they belong to and regenerate it deterministically."""
+    """One glove session to write: a subject's demonstration of a task."""
 
-    kind: str
     task: str
     subject: int
     demo: int
-    method: str = ""
 
     @property
     def stem(self) -> str:
-        base = f"{self.task}_s{self.subject:02d}_d{self.demo:02d}"
-        stems: dict[str, str] = {
-            RecordingKind.GLOVE_SESSION: f"{base}_glove",
-            RecordingKind.ROBOT_REPLAY: f"{base}_{self.method}_replay",
-            RecordingKind.ROBOT_CALIBRATION: f"{base}_{self.method}_calib",
-        }
-        return stems[self.kind]
+        return f"{self.task}_s{self.subject:02d}_d{self.demo:02d}_glove"
 
     @property
     def file_name(self) -> str:
@@ -59,17 +48,12 @@ class RecordingJob:
 
 def plan(config: SynthConfig) -> list[RecordingJob]:
     """Every recording the configuration asks for, in a stable order."""
-    jobs: list[RecordingJob] = []
-    for task in config.tasks:
-        for subject in range(1, config.subjects + 1):
-            for demo in range(1, config.demos_per_subject + 1):
-                jobs.append(RecordingJob(RecordingKind.GLOVE_SESSION, task, subject, demo))
-        glove = [j for j in jobs if j.task == task]
-        for j in glove[: config.replays_per_task]:
-            for method in config.replay_methods:
-                jobs.append(RecordingJob(RecordingKind.ROBOT_CALIBRATION, task, j.subject, j.demo, method))
-                jobs.append(RecordingJob(RecordingKind.ROBOT_REPLAY, task, j.subject, j.demo, method))
-    return jobs
+    return [
+        RecordingJob(task, subject, demo)
+        for task in config.tasks
+        for subject in range(1, config.subjects + 1)
+        for demo in range(1, config.demos_per_subject + 1)
+    ]
 
 
 def _rng(config: SynthConfig, job: RecordingJob, stream: int) -> np.random.Generator:
@@ -121,15 +105,9 @@ def _write_groundtruth(
 
 
 def write_recording(config: SynthConfig, job: RecordingJob, recordings: Path, groundtruth: Path) -> Path:
-    """Write one recording (and its ground truth); returns the MCAP path."""
-    writers: dict[str, Callable[[SynthConfig, RecordingJob, Path, Path], None]] = {
-        RecordingKind.GLOVE_SESSION: _write_glove,
-        RecordingKind.ROBOT_REPLAY: _write_replay,
-        RecordingKind.ROBOT_CALIBRATION: _write_calibration,
-    }
-    writer = writers[job.kind]
+    """Write one glove session (and its ground truth); returns the MCAP path."""
     path = recordings / job.file_name
-    writer(config, job, path, groundtruth / f"{job.stem}.parquet")
+    _write_glove(config, job, path, groundtruth / f"{job.stem}.parquet")
     return path
 
 
@@ -199,101 +177,3 @@ def _write_glove(config: SynthConfig, job: RecordingJob, path: Path, gt_path: Pa
         }
     )
     pq.write_table(motion, gt_path.with_suffix(".motion.parquet"))
-
-
-# Human glove joints -> LEAP joint targets (the replayed "method trajectory"): LEAP finger
-# order (mcp, rot, pip, dip) takes the human (flex, abd, pip, dip); thumb (cmc, axl, mcp, ipl).
-_HUMAN_FOR_LEAP = np.array([5, 4, 6, 7, 9, 8, 10, 11, 13, 12, 14, 15, 1, 0, 2, 3])
-
-
-def _write_replay(config: SynthConfig, job: RecordingJob, path: Path, gt_path: Path) -> None:
-    hand, traj, scene = _demonstration(config, job)
-    rng = _rng(config, job, 2 + config.replay_methods.index(job.method))
-    twintac = TwinTac(_rng(config, job, 50 + config.replay_methods.index(job.method)))
-    ref_duration = float(traj.t[-1])
-    speed, delay = rng.uniform(0.75, 0.95), rng.uniform(0.2, 0.5)
-    duration = delay + ref_duration / speed + 0.5
-
-    def t_ref(t: np.ndarray) -> np.ndarray:
-        return np.clip(speed * (t - delay), 0.0, ref_duration)
-
-    # the robot reproduces the human contacts, late by a per-region lag; the kinematic
-    # baseline misses some regions entirely
-    faithful = job.method != Method.DEX_RETARGETING
-    lag = rng.normal(0.04, 0.03, 8) if faithful else rng.normal(0.12, 0.06, 8)
-    kept = np.ones(8) if faithful else (rng.uniform(size=8) > 0.35).astype(float)
-    scale = rng.uniform(0.6, 1.2, 8)
-    t_ref_grid = np.arange(0.0, ref_duration, 0.005)
-    human = _region_forces(taxel_forces_along(hand, scene, traj.sample(t_ref_grid)))
-    robot_cols = [HUMAN_REGIONS.index(r) for r in ROBOT_REGIONS]
-
-    def robot_force(t: np.ndarray) -> np.ndarray:
-        return np.stack(
-            [
-                kept[k] * scale[k] * np.interp(t_ref(t - lag[k]), t_ref_grid, human[:, c])
-                for k, c in enumerate(robot_cols)
-            ],
-            1,
-        )
-
-    t_tt, t_fsr = _stamps(duration, 100.0, rng), _stamps(duration, 50.0, rng)
-    t_js, t_tg = _stamps(duration, 50.0, rng), _stamps(duration, 20.0, rng)
-    tt_force = robot_force(t_tt)
-    twintac_raw = twintac.read(tt_force[:, :4])
-    fsr_raw = fsr_readings(robot_force(t_fsr)[:, 4:], rng)
-    targets = traj.sample(t_ref(t_tg)).joints[:, _HUMAN_FOR_LEAP]
-    ref_js = traj.sample(t_ref(t_js - 0.05)).joints[:, _HUMAN_FOR_LEAP]  # servo lag behind the targets
-    pos = ref_js + rng.normal(0.0, 0.005, ref_js.shape)
-    vel = np.gradient(pos, t_js, axis=0)
-    effort = 3.0 * (traj.sample(t_ref(t_js)).joints[:, _HUMAN_FOR_LEAP] - pos)
-    t0_ns = EPOCH_NS + 10**15 + _start_offset_s(job) * 10**9
-    glove = RecordingJob(RecordingKind.GLOVE_SESSION, job.task, job.subject, job.demo)
-    calib = RecordingJob(RecordingKind.ROBOT_CALIBRATION, job.task, job.subject, job.demo, job.method)
-    metadata = {
-        "task": job.task,
-        "subject": f"s{job.subject:02d}",
-        "method": job.method,
-        "reference_recording": glove.file_name,
-        "calibration_recording": calib.file_name,
-        "rig": "simulated-demonstrator",
-    }
-    with RecordingWriter(path, RecordingKind.ROBOT_REPLAY, metadata) as w:
-        events = sorted(
-            [(t, 0, i) for i, t in enumerate(t_tt)]
-            + [(t, 1, i) for i, t in enumerate(t_fsr)]
-            + [(t, 2, i) for i, t in enumerate(t_js)]
-            + [(t, 3, i) for i, t in enumerate(t_tg)]
-        )
-        for t, stream, i in events:
-            s = t0_ns + round(t * 1e9)
-            if stream == 0:
-                w.write("/twintac/raw", s, cdr.encode_tactile(s, "twintac", twintac_raw[i]))
-            elif stream == 1:
-                w.write("/fsr/palm", s, cdr.encode_tactile(s, "fsr_palm", fsr_raw[i]))
-            elif stream == 2:
-                w.write(
-                    "/leap/joint_states",
-                    s,
-                    cdr.encode_joint_state(s, "leap", LEAP_JOINT_NAMES, pos[i], vel[i], effort[i]),
-                )
-            else:
-                w.write("/leap/joint_targets", s, cdr.encode_joint_state(s, "leap", LEAP_JOINT_NAMES, targets[i]))
-                w.write(
-                    "/replay/reference_time", s, cdr.encode_reference_time(s, "leap", float(t_ref(np.array([t]))[0]))
-                )
-    start = min(t_tt[0], t_fsr[0], t_js[0], t_tg[0])
-    _write_groundtruth(gt_path, t_tt - start, ROBOT_REGIONS, tt_force, {"speed": speed, "delay": delay})
-
-
-def _write_calibration(config: SynthConfig, job: RecordingJob, path: Path, gt_path: Path) -> None:
-    rng = _rng(config, job, 40)
-    twintac = TwinTac(_rng(config, job, 50 + config.replay_methods.index(job.method)))
-    t = _stamps(config.calibration_s, 100.0, rng)
-    raw = twintac.read(np.zeros((len(t), 4)))
-    t0_ns = EPOCH_NS + 2 * 10**15 + _start_offset_s(job) * 10**9
-    with RecordingWriter(
-        path, RecordingKind.ROBOT_CALIBRATION, {"rig": "simulated-demonstrator", "sensor": "twintac"}
-    ) as w:
-        for i, ti in enumerate(t):
-            s = t0_ns + round(ti * 1e9)
-            w.write("/twintac/raw", s, cdr.encode_tactile(s, "twintac", raw[i]))

@@ -1,11 +1,15 @@
 """The hardware twin: robot replays measured on a perturbed MuJoCo copy of the rig, not scripted.
 
-``replay_rollout`` executes one method's robot trajectory (rows of the ``rollouts`` table) open loop on a
-twin drawn per replay from ``TwinConfig`` and writes the ``robot_replay`` and ``robot_calibration`` MCAPs
-exactly as the rig would, for the normal ingest.
+Public API, by module (imported from there: this package init stays free of mujoco, as ``touch2robot.sim``'s,
+because loading a profile imports ``TwinConfig``):
+
+- ``config``: ``TwinConfig`` -- per-replay perturbation and sensor ranges (the profile's ``twin`` section).
+- ``plan``: ``ReplayConfig`` (the profile's ``replay`` section), ``plan_replays`` -- which trajectories run.
+- ``replay``: ``replay_rollout`` -- one trajectory (rows of the ``rollouts`` table) executed open loop on a
+  twin drawn per replay, written as the rig's ``robot_replay`` and ``robot_calibration`` MCAPs.
+- ``model``, ``sensors``, ``streams``: the perturbed model, the TwinTac and FSR models, the message streams.
 """
 
 from touch2robot.twin.config import TwinConfig
-from touch2robot.twin.replay import ReplayOutcome, replay_rollout
 
-__all__ = ["ReplayOutcome", "TwinConfig", "replay_rollout"]
+__all__ = ["TwinConfig"]

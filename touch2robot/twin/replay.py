@@ -11,14 +11,15 @@ chunks, on a worker thread; meanwhile this thread writes the calibration and the
 its physics arrives. Lost physics raises ``LostPhysicsError`` and leaves neither file.
 
 Clocks: physics time 0 is when command 0 is sent; the recording's streams start a few ms earlier and its
-clock sits at a fixed epoch plus an offset drawn from the seed. A sample at recording time t reads the
-physics at the last step at or before it.
+clock sits at a fixed epoch plus an offset drawn per recording (seed and file name). A sample at recording
+time t reads the physics at the last step at or before it.
 """
 
 from __future__ import annotations
 
 import queue
 import threading
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -320,7 +321,12 @@ def replay_rollout(
     Raises ValueError for rows that are not one rollout of a known task, LostPhysicsError on lost physics."""
     prepared = twin_physics(rollout, sim, twin, seed)
     cmd, scene, rig, model = prepared.commands, prepared.scene, prepared.rig, prepared.rig.model
-    _, sensor_rng, stream_rng, clock_rng = _seeds(seed)
+    _, sensor_rng, _, _ = _seeds(seed)
+    # the hardware (rig and sensor set) is the seed's; the session is the recording's own: its clock, jitter
+    # and noise differ between two replays on one rig, as recordings made one after another do (two
+    # byte-identical calibrations would be one recording to the ingest)
+    session = [*(_seeds(seed)[0].integers(0, 2**31, 2)), zlib.crc32(Path(replay_path).name.encode())]
+    stream_rng, clock_rng = _seeds([int(v) for v in session])[2:]
     twintac, fsr = TwinTac.draw(twin, sensor_rng), PalmFsr.draw(twin, sensor_rng)
     dt = model.opt.timestep
     n_steps = len(prepared.control)

@@ -1,0 +1,51 @@
+"""Flow `replay`: each method's robot trajectories executed open loop on the hardware twin -> robot replay
+and calibration MCAPs in the recordings folder (as the rig writes them) -> the normal ingest -> real
+contacts; the ``replays`` table says what was replayed or skipped and why."""
+
+from __future__ import annotations
+
+from prefect import flow
+
+from flows.ingest import ingest
+from tasks.common import stored
+from tasks.replay import FAILED, REPLAYED, SKIPPED, replay_on_twin, report_replays, skipped_rows, store_replays
+from tasks.runners import ProfileTaskRunner
+from touch2robot.config import load_profile
+from touch2robot.datasets import file_digest
+from touch2robot.settings import DataLayout
+from touch2robot.twin.plan import plan_replays
+
+
+@flow(name="replay", task_runner=ProfileTaskRunner(), log_prints=True)
+def replay(
+    profile: str = "smoke", data: str | None = None, tasks: list[str] | None = None, methods: list[str] | None = None
+) -> dict:
+    """Replay the profile's ``replay`` section (``tasks`` x ``methods``, default all) on the twin of its
+    ``twin`` section, then ingest the recordings so that their measured contacts reach the lake."""
+    layout = DataLayout.from_env(data)
+    settings = load_profile(profile)
+    config = settings.replay
+    config = config.model_copy(
+        update={"tasks": tuple(tasks or config.tasks), "methods": tuple(methods or config.methods)}
+    )
+    jobs, skipped = plan_replays(layout.lake, layout.recordings, config)
+    digests = {path: file_digest(path) for path in sorted({j.rollouts_file for j in jobs})}
+    run = stored(replay_on_twin, layout.results)
+    futures = [run.submit(j, digests[j.rollouts_file], settings.teacher.sim, settings.twin, config) for j in jobs]
+    rows = [f.result() for f in futures] + skipped_rows(skipped)
+    store_replays(str(layout.lake), rows)
+    table = report_replays(profile, rows)
+    for s in table:
+        why = f" ({s['reasons']})" if s["reasons"] else ""
+        print(
+            f"replay: {s['task']:7s} {s['method']:16s} {s[REPLAYED]} replayed, {s[SKIPPED]} skipped, "
+            f"{s[FAILED]} failed{why}"
+        )
+    ingested = ingest(profile=profile, data=data)
+    return {
+        REPLAYED: sum(r["status"] == REPLAYED for r in rows),
+        SKIPPED: sum(r["status"] == SKIPPED for r in rows),
+        FAILED: sum(r["status"] == FAILED for r in rows),
+        "by_task_method": table,
+        "ingest": ingested,
+    }

@@ -1,0 +1,164 @@
+"""Tasks of the replay stage: execute one method's robot trajectory on the hardware twin (writing the
+robot replay and its calibration as the rig would), record what was replayed or skipped, report."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+from prefect import get_run_logger, task
+from prefect.artifacts import create_markdown_artifact, create_table_artifact
+
+from tasks.common import ALWAYS_RUN, cache_policy
+from touch2robot.sim.config import SimConfig
+from touch2robot.twin.config import TwinConfig
+from touch2robot.twin.plan import ReplayConfig, ReplayJob, Skipped
+
+TWIN_RIG = "twin"  # the `rig` metadata of every recording the twin writes
+REPLAY_MODULES = (
+    "touch2robot.twin",
+    "touch2robot.sim",
+    "touch2robot.scenes",
+    "touch2robot.leap",
+    "touch2robot.recording",
+    "touch2robot.geometry",
+)
+REPLAYED, SKIPPED, FAILED = "replayed", "skipped", "failed"
+
+
+def _retry_unless_lost_physics(task, task_run, state) -> bool:
+    """A replay that lost physics (``LostPhysicsError``) loses it again: no retry."""
+    from touch2robot.sim.guard import LostPhysicsError
+
+    return not isinstance(state.data, LostPhysicsError)
+
+
+@task(
+    cache_policy=cache_policy(*REPLAY_MODULES),
+    persist_result=True,
+    retries=1,
+    retry_condition_fn=_retry_unless_lost_physics,
+    task_run_name="replay-{job.task}-{job.method}-{job.demo_index}",
+)
+def replay_on_twin(
+    job: ReplayJob, rollouts_digest: str, sim: SimConfig, twin: TwinConfig, config: ReplayConfig
+) -> dict:
+    """Execute one trajectory open loop on the twin; write its robot replay and calibration MCAPs next to the
+    glove session it follows. ``rollouts_digest`` (the rollouts file's content) keys the cache on the
+    trajectory. A replay that loses physics is a ``failed`` row with the reason, not a crashed stage."""
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    from touch2robot.sim.guard import LostPhysicsError
+    from touch2robot.twin.replay import replay_rollout
+
+    table = pq.read_table(job.rollouts_file)
+    rollout = table.filter(pc.field("rollout_id") == job.trajectory).sort_by("step")
+    row = _row(job, REPLAYED, "")
+    try:
+        outcome = replay_rollout(
+            rollout,
+            sim,
+            twin,
+            job.seed(config),
+            job.replay_path,
+            job.calibration_path,
+            job.metadata(TWIN_RIG),
+        )
+    except LostPhysicsError as e:
+        get_run_logger().warning("replay %s of %s on %s failed: %s", job.trajectory, job.method, job.task, e)
+        return row | {"status": FAILED, "reason": f"lost physics: {e}", "replay_file": None, "calibration_file": None}
+    return row | {
+        "duration_s": outcome.duration_s,
+        "peak_force": list(outcome.peak_region_force),
+        "contact_fraction": list(outcome.contact_fraction),
+        "perturbation": json.dumps(outcome.perturbation, sort_keys=True),
+    }
+
+
+def _row(job: ReplayJob, status: str, reason: str) -> dict:
+    return {
+        "task": job.task,
+        "method": job.method,
+        "origin": job.origin,
+        "trajectory": job.trajectory,
+        "reference_id": job.reference_id,
+        "replay_file": job.replay_path.name,
+        "calibration_file": job.calibration_path.name,
+        "status": status,
+        "reason": reason,
+        "rig": TWIN_RIG,
+        "duration_s": None,
+        "peak_force": None,
+        "contact_fraction": None,
+        "perturbation": None,
+    }
+
+
+def skipped_rows(skipped: list[Skipped]) -> list[dict]:
+    """``replays`` rows of what had nothing to replay."""
+    return [
+        {
+            "task": s.task,
+            "method": s.method,
+            "origin": None,
+            "trajectory": None,
+            "reference_id": None,
+            "replay_file": None,
+            "calibration_file": None,
+            "status": SKIPPED,
+            "reason": s.reason,
+            "rig": TWIN_RIG,
+            "duration_s": None,
+            "peak_force": None,
+            "contact_fraction": None,
+            "perturbation": None,
+        }
+        for s in skipped
+    ]
+
+
+@task(**ALWAYS_RUN)
+def store_replays(lake: str, rows: list[dict]) -> list[str]:
+    """Make ``rows`` the whole ``replays`` table (one file per task x method). Runs every time, like the
+    evaluation tables: the table says what this run's replays are."""
+    from schemas.tables import SCHEMAS
+    from touch2robot.datasets import EVALUATION_IDS
+    from touch2robot.evaluate import replace_table
+
+    frame = pd.DataFrame(rows, columns=SCHEMAS["replays"].names)
+    return replace_table(Path(lake), "replays", frame, EVALUATION_IDS["replays"].columns)
+
+
+@task(**ALWAYS_RUN)
+def report_replays(profile: str, rows: list[dict]) -> list[dict]:
+    """A Prefect table per task x method (replayed, skipped, failed, the reasons) and the log's summary."""
+    logger = get_run_logger()
+    summary: dict[tuple[str, str], dict] = {}
+    for r in rows:
+        s = summary.setdefault(
+            (r["task"], r["method"]),
+            {"task": r["task"], "method": r["method"], REPLAYED: 0, SKIPPED: 0, FAILED: 0, "reasons": []},
+        )
+        s[r["status"]] += 1
+        if r["reason"] and r["reason"] not in s["reasons"]:
+            s["reasons"].append(r["reason"])
+    table = [s | {"reasons": "; ".join(s["reasons"])} for s in summary.values()]
+    for s in table:
+        if s[SKIPPED] or s[FAILED]:
+            logger.warning(
+                "replay %s/%s: %d skipped, %d failed: %s", s["task"], s["method"], s[SKIPPED], s[FAILED], s["reasons"]
+            )
+    create_table_artifact(
+        key="replays", table=table, description=f"Robot replays on the hardware twin per task x method ({profile})"
+    )
+    lines = [
+        f"| {s['task']} | {s['method']} | {s[REPLAYED]} | {s[SKIPPED]} | {s[FAILED]} | {s['reasons']} |" for s in table
+    ]
+    create_markdown_artifact(
+        key="replays-summary",
+        markdown=f"# Replays on the hardware twin ({profile})\n\n"
+        "| task | method | replayed | skipped | failed | why |\n|---|---|---|---|---|---|\n" + "\n".join(lines) + "\n",
+    )
+    return table

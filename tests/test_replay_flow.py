@@ -1,0 +1,84 @@
+"""Flow `replay` (real Prefect, MuJoCo and ingest on tiny data): each method's trajectory executed on the
+hardware twin, written and ingested as the rig's recordings; a method with nothing to replay is a row
+with the reason, in the table, the artefact and the log; a re-run is served from the cache."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import duckdb
+import pytest
+from conftest import rollouts_following
+
+from touch2robot import datasets
+from touch2robot.settings import DataLayout
+
+
+@pytest.fixture(scope="module")
+def replayed(demo_lake: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple[DataLayout, dict]:
+    from flows.replay import replay
+
+    root = tmp_path_factory.mktemp("replay-flow") / "data"
+    shutil.copytree(demo_lake, root)
+    layout = DataLayout(root)
+    pick = next(g for g in datasets.glove_sessions(layout.lake) if g["task"] == "pick")
+    for method, origin in (("contrack", "teacher"), ("dex-retargeting", "kinematic"), ("touch2robot", "student")):
+        rows = rollouts_following("pick", method, origin, pick["recording_id"])
+        datasets.ROLLOUTS.write(layout.lake, datasets.RolloutsKey(origin, "pick"), rows, method=method)
+    return layout, replay(profile="smoke", data=str(root), tasks=["pick", "wipe"])
+
+
+def _sql(layout: DataLayout, query: str) -> list[tuple]:
+    con = duckdb.connect(str(layout.catalog), read_only=True)
+    try:
+        return con.execute(query).fetchall()
+    finally:
+        con.close()
+
+
+def test_each_method_is_replayed_and_ingested_as_the_rigs_recordings(replayed: tuple[DataLayout, dict]) -> None:
+    layout, result = replayed
+    assert result["replayed"] == 3 and result["failed"] == 0
+    for method in ("contrack", "dex-retargeting", "touch2robot"):
+        assert (layout.recordings / f"pick_s01_d01_{method}_replay.mcap").is_file()
+        assert (layout.recordings / f"pick_s01_d01_{method}_calib.mcap").is_file()
+    rows = _sql(
+        layout,
+        "SELECT method, trajectory FROM recordings WHERE kind = 'robot_replay' AND status = 'ingested' ORDER BY 1",
+    )
+    assert rows == [
+        ("contrack", "teacher-contrack-pick-000"),
+        ("dex-retargeting", "kinematic-dex-retargeting-pick-000"),
+        ("touch2robot", "student-touch2robot-pick-000"),
+    ]
+    (real,) = _sql(layout, "SELECT count(DISTINCT sequence_id) FROM contacts WHERE source = 'real'")[0]
+    assert real == 3
+
+
+def test_what_has_no_trajectory_is_skipped_with_the_reason(replayed: tuple[DataLayout, dict]) -> None:
+    layout, result = replayed
+    rows = _sql(layout, "SELECT task, method, status, reason FROM replays WHERE status <> 'replayed' ORDER BY 1, 2")
+    assert [(t, m, s) for t, m, s, _ in rows] == [
+        ("pick", "dexmachina", "skipped"),
+        ("wipe", "contrack", "skipped"),
+        ("wipe", "dex-retargeting", "skipped"),
+        ("wipe", "dexmachina", "skipped"),
+        ("wipe", "touch2robot", "skipped"),
+    ]
+    assert rows[0][3] == "no teacher rollouts of dexmachina on pick (teacher-pick.parquet)"
+    by = {(s["task"], s["method"]): s for s in result["by_task_method"]}
+    assert by[("pick", "dexmachina")]["reasons"] == rows[0][3] and by[("pick", "contrack")]["replayed"] == 1
+    replayed_rows = _sql(layout, "SELECT peak_force, perturbation FROM replays WHERE status = 'replayed'")
+    assert len(replayed_rows) == 3 and all(len(p) == 8 and perturbation for p, perturbation in replayed_rows)
+
+
+def test_a_rerun_is_served_from_the_cache(replayed: tuple[DataLayout, dict]) -> None:
+    from flows.replay import replay
+
+    layout, first = replayed
+    files = sorted([*layout.recordings.glob("*_replay.mcap"), *(layout.lake / "recordings").glob("*.parquet")])
+    stamps = [p.stat().st_mtime_ns for p in files]
+    again = replay(profile="smoke", data=str(layout.root), tasks=["pick", "wipe"])
+    assert [p.stat().st_mtime_ns for p in files] == stamps  # nothing re-executed, rewritten or re-ingested
+    assert again["by_task_method"] == first["by_task_method"]
