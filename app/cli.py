@@ -104,7 +104,12 @@ def _run_flow[R](entrypoint: str, returns: type[R], **parameters: object) -> R:
     console.print(f"[dim]log: {log_file}[/]", highlight=False)
     with _writer_lock(root), stop_on_termination():
         api = None if os.environ.get("PREFECT_API_URL") else PrefectApi(dict(os.environ)).start()
-        from prefect.settings import PREFECT_API_URL, get_current_settings, temporary_settings
+        from prefect.settings import (
+            PREFECT_API_URL,
+            PREFECT_FLOWS_HEARTBEAT_FREQUENCY,
+            get_current_settings,
+            temporary_settings,
+        )
 
         from app.terminal import TerminalHandler
 
@@ -130,7 +135,9 @@ def _run_flow[R](entrypoint: str, returns: type[R], **parameters: object) -> R:
                 from prefect.context import refresh_global_settings_context
 
                 refresh_global_settings_context()
-                with temporary_settings({PREFECT_API_URL: url}):
+                # no heartbeats: they tell a lasting server which runs crashed, and this one ends with
+                # the command; each flow run's end waits up to a second for its heartbeat thread
+                with temporary_settings({PREFECT_API_URL: url, PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
                     result = flow(**parameters)
     if not isinstance(result, returns):
         raise TypeError(f"flow {entrypoint} returned a {type(result).__name__}, not a {returns.__name__}")
