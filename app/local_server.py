@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import json
 import logging
 import os
 import signal
@@ -34,6 +35,7 @@ import urllib.request
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from types import FrameType
 from typing import IO, Any
 
@@ -182,6 +184,32 @@ class PrefectApi:
         if self.process is not None:
             stop_group(self.process)
             self.process = None
+
+
+# beside the Prefect database (PREFECT_HOME of the data folder): the API of a running
+# ``touch2robot ui --start``, which the folder's flow commands use instead of starting one
+UI_API_RECORD = "ui-api.json"
+
+
+def record_ui_api(prefect_home: Path, url: str, pid: int) -> Path:
+    """Note the API ``url`` of the UI's Prefect server (process ``pid``) for the folder's commands."""
+    path = prefect_home / UI_API_RECORD
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps({"url": url, "pid": pid}))
+    os.replace(tmp, path)
+    return path
+
+
+def running_ui_api(prefect_home: Path) -> str | None:
+    """The API URL of the UI's Prefect server on this folder's database when it still runs and
+    answers, else None. A UI killed with SIGKILL leaves its record: its server died with it."""
+    try:
+        record = json.loads((prefect_home / UI_API_RECORD).read_text())
+        url, pid = str(record["url"]), int(record["pid"])
+        os.kill(pid, 0)
+    except (OSError, ValueError, KeyError, TypeError):  # no record, a bad one, or its process is gone
+        return None
+    return url if answers(f"{url}/health", timeout_s=1.0) else None
 
 
 @contextmanager

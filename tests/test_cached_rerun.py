@@ -1,20 +1,25 @@
 """A re-run of finished work resolves its cache hits in the flow process and starts no process
-pool (tasks.runners.ProfileTaskRunner); work that is not cached still runs in the pool.
+pool (tasks.runners.ProfileTaskRunner); work that is not cached still runs in the pool. A flow
+command uses the Prefect API of a running `touch2robot ui --start` instead of starting one.
 
 Real Prefect in a subprocess (its embedded API, a data folder of its own): Prefect reads its
 settings once per process."""
 
 from __future__ import annotations
 
+import http.server
 import json
 import os
 import subprocess
 import sys
 import textwrap
+import threading
 from pathlib import Path
 
 import pytest
 from conftest import kill_group
+
+from app.local_server import UI_API_RECORD, record_ui_api, running_ui_api
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -163,3 +168,36 @@ def test_changed_inputs_still_miss_and_run_in_the_pool(runs: dict) -> None:
     ran = _executions(changed)
     assert [(name, x) for name, x, _ in ran] == [("plus", 1), ("plus", 4), ("plus", 16), ("square", 4)]
     assert runs["flow_pid"] not in {pid for _, _, pid in ran}
+
+
+class _Health(http.server.BaseHTTPRequestHandler):
+    def do_GET(self) -> None:
+        self.send_response(200 if self.path == "/api/health" else 404)
+        self.end_headers()
+        self.wfile.write(b"true")
+
+    def log_message(self, *args: object) -> None:
+        pass
+
+
+def test_a_running_ui_server_is_found_and_a_gone_one_is_not(tmp_path: Path) -> None:
+    """A flow command uses the Prefect API of the folder's `touch2robot ui --start` only while
+    its process runs and the API answers (a UI killed with SIGKILL leaves its record behind)."""
+    server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), _Health)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    url = f"http://127.0.0.1:{server.server_address[1]}/api"
+    try:
+        assert running_ui_api(tmp_path) is None  # no record
+        record_ui_api(tmp_path, url, os.getpid())
+        assert running_ui_api(tmp_path) == url
+        gone = subprocess.Popen([sys.executable, "-c", "pass"])
+        gone.wait()
+        record_ui_api(tmp_path, url, gone.pid)
+        assert running_ui_api(tmp_path) is None  # its process is gone
+        record_ui_api(tmp_path, f"http://127.0.0.1:{server.server_address[1]}/elsewhere", os.getpid())
+        assert running_ui_api(tmp_path) is None  # does not answer
+        (tmp_path / UI_API_RECORD).write_text("{")
+        assert running_ui_api(tmp_path) is None
+    finally:
+        server.shutdown()
+        server.server_close()
