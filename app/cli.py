@@ -89,12 +89,13 @@ def _run_flow[R](entrypoint: str, returns: type[R], **parameters: object) -> R:
     import atexit
     import importlib
 
-    from app.local_server import PrefectApi, stop_on_termination
+    from app.local_server import PrefectApi, running_ui_api, stop_on_termination
     from tasks import logs
     from touch2robot.settings import DataLayout
 
     module, function = entrypoint.split(":")
-    root = DataLayout.from_env().root  # the folder ``_layout`` configured
+    layout = DataLayout.from_env()  # the folder ``_layout`` configured
+    root = layout.root
     log_file = root / "logs" / f"{session.command}-{time.strftime('%Y%m%d-%H%M%S')}.log"
     log_file.parent.mkdir(parents=True, exist_ok=True)
     # for this process and the task runners' workers: MLflow's records go through logging like
@@ -103,34 +104,49 @@ def _run_flow[R](entrypoint: str, returns: type[R], **parameters: object) -> R:
     os.environ.setdefault("MLFLOW_CONFIGURE_LOGGING", "false")
     console.print(f"[dim]log: {log_file}[/]", highlight=False)
     with _writer_lock(root), stop_on_termination():
-        api = None if os.environ.get("PREFECT_API_URL") else PrefectApi(dict(os.environ)).start()
-        from prefect.settings import PREFECT_API_URL, get_current_settings, temporary_settings
+        # a running `touch2robot ui --start` of this folder serves its database already: its API
+        # answers at once, where a server of this command takes seconds to start and warm up
+        ui_api = None if os.environ.get("PREFECT_API_URL") else running_ui_api(layout.prefect_home)
+        api = None if os.environ.get("PREFECT_API_URL") or ui_api else PrefectApi(dict(os.environ)).start()
+        from prefect.settings import (
+            PREFECT_API_URL,
+            PREFECT_FLOWS_HEARTBEAT_FREQUENCY,
+            get_current_settings,
+            temporary_settings,
+        )
 
         from app.terminal import TerminalHandler
 
         settings = get_current_settings()
-        if api is not None and settings.api.url:  # the user's Prefect profile names a server
-            api.stop()
-            api = None
+        if settings.api.url:  # the user's Prefect profile names a server
+            if api is not None:
+                api.stop()
+            api = ui_api = None
         terminal = TerminalHandler(console, verbose=session.verbose, own_api=api is not None)
         logs.configure(str(log_file), terminal)
         logs.show_worker_logs_with(None if session.verbose else terminal)
         flow = getattr(importlib.import_module(module), function)
         with terminal:
-            if api is None:
+            if api is None and ui_api is None:
                 result = flow(**parameters)
             else:
-                # stopped at exit, after Prefect's log and event workers have sent what they hold
-                # (they drain at thread shutdown, before atexit), as Prefect stops its own server
-                atexit.register(api.stop)
-                url = api.wait_ready(settings.server.ephemeral.startup_timeout_seconds)
+                if api is not None:
+                    # stopped at exit, after Prefect's log and event workers have sent what they hold
+                    # (they drain at thread shutdown, before atexit), as Prefect stops its own server
+                    atexit.register(api.stop)
+                    url = api.wait_ready(settings.server.ephemeral.startup_timeout_seconds)
+                else:
+                    url = ui_api
+                    console.print(f"[dim]Prefect API: the server of `touch2robot ui`, {url}[/]", highlight=False)
                 os.environ["PREFECT_API_URL"] = url  # for processes the flow starts (task runners)
                 # and for threads without the flow's context (a process pool's result and log
                 # forwarding): they read the global settings, made at import, before this URL existed
                 from prefect.context import refresh_global_settings_context
 
                 refresh_global_settings_context()
-                with temporary_settings({PREFECT_API_URL: url}):
+                # no heartbeats: they tell a lasting server which runs crashed, and these servers end
+                # with a command; each flow run's end waits up to a second for its heartbeat thread
+                with temporary_settings({PREFECT_API_URL: url, PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
                     result = flow(**parameters)
     if not isinstance(result, returns):
         raise TypeError(f"flow {entrypoint} returned a {type(result).__name__}, not a {returns.__name__}")
@@ -461,7 +477,7 @@ def ui(
     import signal
 
     layout = _layout(data)
-    from app.local_server import StopRequest, answers, spawn_owned, stop_group
+    from app.local_server import UI_API_RECORD, StopRequest, answers, record_ui_api, spawn_owned, stop_group
     from tasks.tracking import local_uri, relocate_store, tracking_uri
 
     # name: (command, health URL, UI URL); a server the user points at is theirs to run
@@ -530,6 +546,8 @@ def ui(
                     if answers(servers[name][1]):
                         console.print(f"{name} UI on {servers[name][2]}")
                         announced.add(name)
+                        if name == "Prefect":  # the folder's flow commands use it (app.local_server)
+                            record_ui_api(layout.prefect_home, f"{servers[name][2]}/api", running[name].pid)
                         if announced == running.keys():
                             console.print("Ctrl-C stops them")
             if stop.signum is None:
@@ -538,6 +556,7 @@ def ui(
                 raise typer.Exit(1)
             console.print("stopping")
         finally:
+            (layout.prefect_home / UI_API_RECORD).unlink(missing_ok=True)
             for proc in running.values():
                 stop_group(proc)
     if stop.signum != signal.SIGINT:  # a SIGTERM or SIGHUP ends the command as that signal would

