@@ -178,3 +178,21 @@ def test_replays_link_to_calibration_and_reference(replay_data: Path, tmp_path: 
     assert reference is not None and reference["recording_id"] == gloves[0]["recording_id"]
     # the trajectory the replay executed is on its recordings row: tactile fidelity pairs them by it
     assert links[0].replay["trajectory"] == "teacher-touch2robot-pick-000" and gloves[0]["trajectory"] is None
+
+
+def test_a_copied_recordings_folder_keeps_its_replays_linked(replay_data: Path, tmp_path: Path) -> None:
+    """Unchanged recordings found at a new place (a copied data folder) have their rows follow them: a
+    replay written there later links to its glove session by folder."""
+    lake, first, copy = tmp_path / "lake", tmp_path / "first", tmp_path / "copy"
+    first.mkdir()
+    for p in (replay_data / "recordings").glob("pick_*.mcap"):
+        shutil.copy(p, first / p.name)
+    for p in sorted(first.glob("*.mcap")):
+        ingest_file(p, lake)
+    shutil.copytree(first, copy)
+    shutil.rmtree(first)
+    assert {ingest_file(p, lake).status for p in sorted(copy.glob("*.mcap"))} == {"unchanged"}
+    rows = recording_rows(lake).to_pylist()
+    assert {Path(r["path"]).parent for r in rows} == {copy.resolve()}
+    _, links, problems = link_replays(rows)
+    assert problems == [] and len(links) == 1 and links[0].reference is not None

@@ -87,6 +87,7 @@ def ingest_file(path: Path, lake: Path) -> IngestResult:
         return IngestResult(rid, str(path), RecordingStatus.QUARANTINED, e.reason, "", 0)
     marker = lake_io.file_path(lake, "recordings", rec.recording_id)
     if _stored_whole(lake, rec, marker):
+        _follow_move(lake, marker, path)
         return IngestResult(rec.recording_id, str(path), RecordingStatus.UNCHANGED, "", rec.kind, 0)
     rows = 0
     for table, rows_table in stream_tables(rec).items():
@@ -99,6 +100,19 @@ def ingest_file(path: Path, lake: Path) -> IngestResult:
         _row(path, rec.recording_id, rec.size_bytes, RecordingStatus.INGESTED, "", rec),
     )
     return IngestResult(rec.recording_id, str(path), RecordingStatus.INGESTED, "", rec.kind, rows)
+
+
+def _follow_move(lake: Path, marker: Path, path: Path) -> None:
+    """An unchanged recording found at another path (a copied or moved data folder) has its row say where it
+    is now: replays link to their calibration and glove session by folder."""
+    from schemas.tables import recordings
+
+    row = pq.read_table(marker, schema=recordings)  # a lake of an older schema lacks its newer columns
+    if row["path"][0].as_py() == str(path):
+        return
+    row = row.set_column(row.schema.get_field_index("path"), "path", pa.array([str(path)]))
+    row = row.set_column(row.schema.get_field_index("file_name"), "file_name", pa.array([path.name]))
+    lake_io.write_rows(lake, "recordings", marker.stem, row)
 
 
 def _stored_whole(lake: Path, rec: DecodedRecording, marker: Path) -> bool:
