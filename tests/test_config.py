@@ -37,6 +37,11 @@ def test_paper_profile_is_the_code_defaults() -> None:
         ("teacher:\n  ppo:\n    hidden_dims: [64, true]\n", "teacher.ppo.hidden_dims.1: expected a number"),
         ("synth:\n  subjects: 2\n  subjects: 3\n", "duplicate key 'subjects' (first at line 2)"),
         ("policy:\n  image_size: 8\n", "policy.image_size"),
+        ("twin:\n  latency_s: [0.0, 5.0]\n", "twin.latency_s.1: Input should be less than or equal to 0.2"),
+        ("twin:\n  kp_scale: [1.2, 0.8]\n", "twin: Value error, kp_scale: low 1.2 is above high 0.8"),
+        ("twin:\n  friction_scale: [true, 1.0]\n", "twin.friction_scale.0: expected a number, got True"),
+        ("replay:\n  demos_per_task: 0\n", "replay.demos_per_task"),
+        ("replay:\n  touch2robot_origin: kinematic\n", "replay.touch2robot_origin"),
     ],
 )
 def test_bad_profile_names_file_and_field(tmp_path: Path, text: str, message: str) -> None:

@@ -124,6 +124,8 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 
 
 def _leaf_types(annotation: object) -> set[object]:
+    if typing.get_origin(annotation) is typing.Annotated:  # a bounded number: Annotated[float, Field(ge=...)]
+        return _leaf_types(typing.get_args(annotation)[0])
     if typing.get_origin(annotation) in (typing.Union, types.UnionType):
         return set().union(*(_leaf_types(a) for a in typing.get_args(annotation)))
     return {typing.get_origin(annotation) or annotation}
