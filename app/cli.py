@@ -136,6 +136,7 @@ def _run_flow[R](entrypoint: str, returns: type[R], **parameters: object) -> R:
                     atexit.register(api.stop)
                     url = api.wait_ready(settings.server.ephemeral.startup_timeout_seconds)
                 else:
+                    assert ui_api is not None  # the branch's condition
                     url = ui_api
                     console.print(f"[dim]Prefect API: the server of `touch2robot ui`, {url}[/]", highlight=False)
                 os.environ["PREFECT_API_URL"] = url  # for processes the flow starts (task runners)

@@ -48,7 +48,7 @@ def run_pipeline(profile: str, data: Path, env: dict[str, str]) -> tuple[float, 
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(description=(__doc__ or "").splitlines()[0])
     parser.add_argument("--profile", default="smoke")
     parser.add_argument("--data", type=Path, help="an empty or new data folder, kept afterwards")
     args = parser.parse_args()

@@ -72,6 +72,14 @@ def one_torch_thread() -> None:
     torch.set_num_threads(1)
 
 
+def retry_unless_lost_physics(task: Any, task_run: Any, state: Any) -> bool:
+    """Retry condition of the tasks that simulate: a simulation that lost physics (``LostPhysicsError``)
+    fails the same way again, so it is not retried."""
+    from touch2robot.sim.guard import LostPhysicsError
+
+    return not isinstance(state.data, LostPhysicsError)
+
+
 STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
 
 

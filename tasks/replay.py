@@ -10,7 +10,7 @@ import pandas as pd
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
-from tasks.common import ALWAYS_RUN, cache_policy
+from tasks.common import ALWAYS_RUN, cache_policy, retry_unless_lost_physics
 from touch2robot.sim.config import SimConfig
 from touch2robot.twin.config import TwinConfig
 from touch2robot.twin.plan import ReplayConfig, ReplayJob, Skipped
@@ -27,18 +27,11 @@ REPLAY_MODULES = (
 REPLAYED, SKIPPED, FAILED = "replayed", "skipped", "failed"
 
 
-def _retry_unless_lost_physics(task, task_run, state) -> bool:
-    """A replay that lost physics (``LostPhysicsError``) loses it again: no retry."""
-    from touch2robot.sim.guard import LostPhysicsError
-
-    return not isinstance(state.data, LostPhysicsError)
-
-
 @task(
     cache_policy=cache_policy(*REPLAY_MODULES),
     persist_result=True,
     retries=1,
-    retry_condition_fn=_retry_unless_lost_physics,
+    retry_condition_fn=retry_unless_lost_physics,
     task_run_name="replay-{job.task}-{job.method}-{job.demo_index}",
 )
 def replay_on_twin(

@@ -191,7 +191,8 @@ def cached_result_exists(task: Any, parameters: dict[str, Any]) -> bool:
     refresh = task.refresh_cache if task.refresh_cache is not None else PREFECT_TASKS_REFRESH_CACHE.value()
     if ctx is None or ctx.flow_run is None or not isinstance(policy, CachePolicy) or refresh:
         return False
-    store = get_result_store().update_for_task(task, _sync=True)
+    # async_dispatch picks the async variant inside the flow's event loop unless told _sync (untyped kwarg)
+    store = get_result_store().update_for_task(task, _sync=True)  # pyright: ignore[reportCallIssue]
     task_run = TaskRun(
         id=uuid.uuid4(),
         name=task.name,

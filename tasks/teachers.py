@@ -12,7 +12,7 @@ from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
 from schemas.vocabulary import Method, Origin, Source
 from tasks import tracking
-from tasks.common import ALWAYS_RUN, cache_policy, checkpoint_on_stop, one_torch_thread
+from tasks.common import ALWAYS_RUN, cache_policy, checkpoint_on_stop, one_torch_thread, retry_unless_lost_physics
 from tasks.logs import TrainingProgress, both
 from touch2robot import datasets
 from touch2robot.settings import DataLayout
@@ -53,13 +53,6 @@ def _params(config: TeacherConfig, method: str) -> dict[str, object]:
     return flat
 
 
-def _retry_unless_lost_physics(task, task_run, state) -> bool:
-    """A simulation that lost physics (``LostPhysicsError``) fails the same way again: no retry."""
-    from touch2robot.sim.guard import LostPhysicsError
-
-    return not isinstance(state.data, LostPhysicsError)
-
-
 def _run_folder(layout: DataLayout, task_name: str, method: str, config: TeacherConfig, digest: str) -> Path:
     """One folder per distinct training: checkpoints of another config or other demonstrations
     are never resumed into this one."""
@@ -81,7 +74,7 @@ def _run_folder(layout: DataLayout, task_name: str, method: str, config: Teacher
     cache_policy=cache_policy(*TEACHER_MODULES),
     persist_result=True,
     retries=1,
-    retry_condition_fn=_retry_unless_lost_physics,
+    retry_condition_fn=retry_unless_lost_physics,
     task_run_name="teacher-{task_name}-{method}",
 )
 def train_teacher(

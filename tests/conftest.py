@@ -59,6 +59,40 @@ def kill_group(proc: subprocess.Popen) -> None:
     proc.wait(timeout=30)
 
 
+def run_script_for_result(argv: list[str], data: Path, extra_env: dict[str, str] | None = None) -> tuple[dict, str]:
+    """Run a Python script in a fresh process with its own data folder, Prefect home and embedded API (its
+    process group killed afterwards: the API server and any worker left behind); the JSON object it printed
+    last on a ``RESULT `` line, and its whole output."""
+    import json
+    import sys
+
+    env = {
+        **os.environ,
+        **(extra_env or {}),
+        "TOUCH2ROBOT_DATA": str(data),
+        "PREFECT_HOME": str(data / "prefect"),
+        "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
+        "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "120",
+    }
+    env.pop("PREFECT_API_URL", None)  # the embedded API: the case where workers must be told where it is
+    proc = subprocess.Popen(
+        [sys.executable, *argv],
+        cwd=Path(__file__).resolve().parents[1],
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+        start_new_session=True,
+    )
+    try:
+        output, _ = proc.communicate(timeout=400)
+    finally:
+        kill_group(proc)
+    lines = [line for line in output.splitlines() if line.startswith("RESULT ")]
+    assert proc.returncode == 0 and lines, output[-6000:]
+    return json.loads(lines[-1][len("RESULT ") :]), output
+
+
 @pytest.fixture(scope="session")
 def session_dir() -> Path:
     return _SESSION_DIR

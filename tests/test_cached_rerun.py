@@ -8,7 +8,6 @@ settings once per process."""
 from __future__ import annotations
 
 import http.server
-import json
 import os
 import subprocess
 import sys
@@ -17,7 +16,7 @@ import threading
 from pathlib import Path
 
 import pytest
-from conftest import kill_group
+from conftest import run_script_for_result
 
 from app.local_server import UI_API_RECORD, record_ui_api, running_ui_api
 
@@ -101,31 +100,10 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict:
     (tmp / "runs.py").write_text(RUNS)
     data = tmp / "data"
     data.mkdir()
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join([str(tmp), str(ROOT)]),
-        "TOUCH2ROBOT_DATA": str(data),
-        "PREFECT_HOME": str(data / "prefect"),
-        "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
-        "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "120",
-    }
-    env.pop("PREFECT_API_URL", None)
-    proc = subprocess.Popen(
-        [sys.executable, str(tmp / "runs.py"), str(data)],
-        cwd=ROOT,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        start_new_session=True,
+    result, _ = run_script_for_result(
+        [str(tmp / "runs.py"), str(data)], data, {"PYTHONPATH": os.pathsep.join([str(tmp), str(ROOT)])}
     )
-    try:
-        output, _ = proc.communicate(timeout=400)
-    finally:
-        kill_group(proc)
-    lines = [line for line in output.splitlines() if line.startswith("RESULT ")]
-    assert proc.returncode == 0 and lines, output[-6000:]
-    return json.loads(lines[-1][len("RESULT ") :])
+    return result
 
 
 def _executions(run: dict) -> list[tuple[str, int, int]]:

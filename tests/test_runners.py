@@ -6,7 +6,6 @@ leave its environment behind for the rest of the test session."""
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import subprocess
@@ -16,7 +15,7 @@ import time
 from pathlib import Path
 
 import pytest
-from conftest import kill_group, live_processes_with_env
+from conftest import kill_group, live_processes_with_env, run_script_for_result
 from pydantic import ValidationError
 
 from touch2robot.runner_config import RunnerConfig
@@ -104,30 +103,7 @@ def probe(tmp_path_factory: pytest.TempPathFactory) -> dict:
     Path(profile).write_text(
         "name: threads3\nrunner:\n  kind: threads\n  max_workers: 3\ntraining_runner:\n  max_workers: 2\n"
     )
-    env = {
-        **os.environ,
-        "TOUCH2ROBOT_DATA": str(tmp / "data"),
-        "PREFECT_HOME": str(tmp / "data" / "prefect"),
-        "PREFECT_SERVER_ANALYTICS_ENABLED": "false",
-        "PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS": "120",
-    }
-    env.pop("PREFECT_API_URL", None)  # the embedded API: the case where workers must be told where it is
-    proc = subprocess.Popen(
-        [sys.executable, str(script), profile],
-        cwd=ROOT,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-        start_new_session=True,
-    )
-    try:
-        output, _ = proc.communicate(timeout=400)
-    finally:
-        kill_group(proc)  # the flow process, its API server and any Dask worker left behind share the group
-    lines = [line for line in output.splitlines() if line.startswith("RESULT ")]
-    assert proc.returncode == 0 and lines, output[-6000:]
-    result = json.loads(lines[-1][len("RESULT ") :])
+    result, output = run_script_for_result([str(script), profile], tmp / "data")
     result["log"] = output
     return result
 

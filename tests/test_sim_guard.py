@@ -112,8 +112,8 @@ def test_the_error_survives_pickling() -> None:
 def test_the_teacher_task_does_not_retry_lost_physics() -> None:
     from prefect.states import Failed
 
-    from tasks.teachers import _retry_unless_lost_physics
+    from tasks.common import retry_unless_lost_physics
 
     lost = Failed(data=LostPhysicsError("pick", 0, 0.05, "contact buffer full"))
-    assert not _retry_unless_lost_physics(None, None, lost)
-    assert _retry_unless_lost_physics(None, None, Failed(data=OSError("disk full")))
+    assert not retry_unless_lost_physics(None, None, lost)
+    assert retry_unless_lost_physics(None, None, Failed(data=OSError("disk full")))
