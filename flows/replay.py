@@ -4,6 +4,8 @@ contacts; the ``replays`` table says what was replayed or skipped and why."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from prefect import flow
 
 from flows.ingest import ingest
@@ -41,11 +43,16 @@ def replay(
             f"replay: {s['task']:7s} {s['method']:16s} {s[REPLAYED]} replayed, {s[SKIPPED]} skipped, "
             f"{s[FAILED]} failed{why}"
         )
-    ingested = ingest(profile=profile, data=data)
+    # the data folder's recordings, and any other folder a glove session was ingested from (`ingest --folder`):
+    # its replays were written beside it
+    recordings = layout.recordings.resolve()
+    elsewhere = sorted({j.folder for j in jobs if not Path(j.folder).is_relative_to(recordings)})
+    folders = ([None] if recordings.is_dir() else []) + elsewhere
+    ingested = [ingest(profile=profile, data=data, folder=folder) for folder in folders]
     return {
         REPLAYED: sum(r["status"] == REPLAYED for r in rows),
         SKIPPED: sum(r["status"] == SKIPPED for r in rows),
         FAILED: sum(r["status"] == FAILED for r in rows),
         "by_task_method": table,
-        "ingest": ingested,
+        "ingest": ingested,  # one result per folder ingested
     }

@@ -82,3 +82,24 @@ def test_a_rerun_is_served_from_the_cache(replayed: tuple[DataLayout, dict]) -> 
     again = replay(profile="smoke", data=str(layout.root), tasks=["pick", "wipe"])
     assert [p.stat().st_mtime_ns for p in files] == stamps  # nothing re-executed, rewritten or re-ingested
     assert again["by_task_method"] == first["by_task_method"]
+
+
+def test_replays_of_a_session_from_another_folder_are_written_and_ingested_there(
+    replay_data: Path, tmp_path: Path
+) -> None:
+    """A glove session ingested with `ingest --folder` gets its replays beside it, and they are ingested."""
+    from flows.ingest import ingest
+    from flows.replay import replay
+
+    elsewhere, layout = tmp_path / "rig-sessions", DataLayout(tmp_path / "data")
+    elsewhere.mkdir()
+    shutil.copy(next((replay_data / "recordings").glob("pick_*_glove.mcap")), elsewhere)
+    ingest(profile="smoke", data=str(layout.root), folder=str(elsewhere))
+    (glove,) = datasets.glove_sessions(layout.lake)
+    rows = rollouts_following("pick", "contrack", "teacher", glove["recording_id"], n=1)
+    datasets.ROLLOUTS.write(layout.lake, datasets.RolloutsKey("teacher", "pick"), rows, method="contrack")
+    result = replay(profile="smoke", data=str(layout.root), tasks=["pick"], methods=["contrack"])
+    assert result["replayed"] == 1
+    (path,) = _sql(layout, "SELECT path FROM recordings WHERE kind = 'robot_replay'")[0]
+    assert Path(path).parent == elsewhere.resolve()
+    assert _sql(layout, "SELECT count(*) FROM contacts WHERE source = 'real'")[0][0] > 0
