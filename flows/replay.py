@@ -33,7 +33,7 @@ def replay(
     jobs, skipped = plan_replays(layout.lake, layout.recordings, config)
     digests = {path: file_digest(path) for path in sorted({j.rollouts_file for j in jobs})}
     run = stored(replay_on_twin, layout.results)
-    futures = [run.submit(j, digests[j.rollouts_file], settings.teacher.sim, settings.twin, config) for j in jobs]
+    futures = [run.submit(j, digests[j.rollouts_file], settings.teacher.sim, settings.twin, config.seed) for j in jobs]
     rows = [f.result() for f in futures] + skipped_rows(skipped)
     store_replays(str(layout.lake), rows)
     table = report_replays(profile, rows)

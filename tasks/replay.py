@@ -13,7 +13,7 @@ from prefect.artifacts import create_markdown_artifact, create_table_artifact
 from tasks.common import ALWAYS_RUN, cache_policy, retry_unless_lost_physics
 from touch2robot.sim.config import SimConfig
 from touch2robot.twin.config import TwinConfig
-from touch2robot.twin.plan import ReplayConfig, ReplayJob, Skipped
+from touch2robot.twin.plan import ReplayJob, Skipped
 
 TWIN_RIG = "twin"  # the `rig` metadata of every recording the twin writes
 REPLAY_MODULES = (
@@ -34,12 +34,11 @@ REPLAYED, SKIPPED, FAILED = "replayed", "skipped", "failed"
     retry_condition_fn=retry_unless_lost_physics,
     task_run_name="replay-{job.task}-{job.method}-{job.demo_index}",
 )
-def replay_on_twin(
-    job: ReplayJob, rollouts_digest: str, sim: SimConfig, twin: TwinConfig, config: ReplayConfig
-) -> dict:
+def replay_on_twin(job: ReplayJob, rollouts_digest: str, sim: SimConfig, twin: TwinConfig, seed: int) -> dict:
     """Execute one trajectory open loop on the twin; write its robot replay and calibration MCAPs next to the
     glove session it follows. ``rollouts_digest`` (the rollouts file's content) keys the cache on the
-    trajectory. A replay that loses physics is a ``failed`` row with the reason, not a crashed stage."""
+    trajectory; ``seed`` is the profile's ``replay.seed`` (the rest of that section chose the job). A replay that
+    loses physics is a ``failed`` row with the reason, not a crashed stage."""
     import pyarrow.compute as pc
     import pyarrow.parquet as pq
 
@@ -54,7 +53,7 @@ def replay_on_twin(
             rollout,
             sim,
             twin,
-            job.seed(config),
+            job.seed(seed),
             job.replay_path,
             job.calibration_path,
             job.metadata(TWIN_RIG),

@@ -78,9 +78,10 @@ class ReplayJob:
     def calibration_path(self) -> Path:
         return Path(self.folder) / f"{self.stem}_calib.mcap"
 
-    def seed(self, config: ReplayConfig) -> tuple[int, int, int]:
-        """The twin's seed: the same hardware draw for every method's replay of one demonstration."""
-        return (config.seed, scenes.TASKS.index(self.task), self.demo_index)
+    def seed(self, base: int) -> tuple[int, int, int]:
+        """The twin's seed under the profile's ``replay.seed``: the same hardware draw for every method's replay of
+        one demonstration."""
+        return (base, scenes.TASKS.index(self.task), self.demo_index)
 
     def metadata(self, rig: str) -> dict[str, str]:
         """The replay MCAP's metadata, as schemas.messages.METADATA_KEYS asks for a robot replay."""
