@@ -15,7 +15,10 @@ as a ``lerobot-train`` command line.
 
 One difference in loading: ``touch2robot.policy.reader.column_views`` makes the dataset read its
 observation/action windows from single-column views (LeRobot PR #4314, unreleased in 0.6.1).
-Without it every window row decodes both camera images, a third of a CPU update.
+Without it every window row decodes both camera images, a third of a CPU update. And by default
+(``PolicyConfig.loader = "frames"``) the batches come from ``touch2robot.policy.loader.FrameLoader``:
+LeRobot's batches in the sampler's order from frames decoded once (bench/policy_loader.py), drawing
+from torch's RNG as LeRobot's DataLoader does, so either loader trains the same weights.
 """
 
 from __future__ import annotations
