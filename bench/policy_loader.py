@@ -14,7 +14,8 @@ start-up, first decode), then ``--batches`` timed ones. The loaders compared:
 - ``lerobot+column views``: the same with ``touch2robot.policy.reader.column_views`` (the stage's
   loader before ``FrameLoader``);
 - ``frames``: ``FrameLoader`` on this machine's training device, its images float32 on that device
-  (CPU here when no GPU: the uint8 -> float conversion is then part of its time).
+  (CPU here when no GPU: the uint8 -> float conversion is then part of its time); and its host-side
+  gather alone (uint8 images), the part a GPU training waits for.
 """
 
 from __future__ import annotations
@@ -92,6 +93,10 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=None, help="LeRobot DataLoader worker processes")
     args = parser.parse_args()
 
+    # picks MuJoCo's headless GL backend: before anything imports mujoco
+    from touch2robot.sim import render as _render  # noqa: F401
+
+    # isort: split
     import torch
     from lerobot.datasets.factory import make_dataset
 
@@ -128,6 +133,14 @@ def main() -> None:
         print(f"frame cache: decoded once in {time.perf_counter() - start:.1f} s (not timed below)")
         rates["frames"] = _rate(frames, 4 * args.batches, device)
         print(f"{'frames':>22}: {rates['frames']:.2f} batches/s (on {device.type})")
+        # what a GPU's training waits for: the host's gather, images still uint8 (the float conversion on the GPU)
+        order = list(iter(frames.sampler))
+        starts = [(i * cfg.batch_size) % max(1, len(order) - cfg.batch_size) for i in range(4 * args.batches)]
+        start = time.perf_counter()
+        for first in starts:
+            frames.host_batch(order[first : first + cfg.batch_size])
+        host = len(starts) / (time.perf_counter() - start)
+        print(f"{'frames, host gather':>22}: {host:.2f} batches/s (uint8 images, before the device)")
     print(
         f"paper batches (batch {cfg.batch_size}, n_obs {cfg.n_obs_steps}, horizon {cfg.horizon}, "
         f"{len(cfg.cameras)} x {cfg.image_size} px) on {os.cpu_count()} cores: frames {rates['frames']:.2f}/s, "

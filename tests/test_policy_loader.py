@@ -111,7 +111,8 @@ def test_the_loader_yields_lerobots_batches_in_lerobots_order(datasets, tmp_path
 
 def test_a_rebuilt_dataset_is_not_served_from_a_stale_frame_cache(datasets, tmp_path: Path) -> None:
     (first, first_id), (second, second_id) = datasets
-    FrameLoader(_lerobot(first, first_id, tmp_path / "a"), _sampler(_lerobot(first, first_id, tmp_path / "a")), 4)
+    primed = _lerobot(first, first_id, tmp_path / "a")
+    FrameLoader(primed, _sampler(primed), 4)
     assert dataset_digest(first) != dataset_digest(second)
     # the second dataset's folder holding the first one's cache (same episode and frame counts)
     shutil.rmtree(second / CACHE_DIR, ignore_errors=True)

@@ -7,7 +7,8 @@ edges) in the order of the same ``EpisodeAwareSampler``, built differently:
 
 - every camera's frames are decoded once into a memory-mapped uint8 array (N, 3, H, W) cached in the
   dataset's folder (``.frame_cache/<digest>``), keyed by a digest of the dataset's data and info
-  files: a rebuilt dataset is decoded again, never served stale. The cache is written into a
+  files (read at every start, about a second per GB): a rebuilt dataset is decoded again, never
+  served stale, and trainings of several seeds on one dataset share one decode. The cache is written into a
   temporary folder and renamed into place, so a killed writer leaves nothing that is read;
 - the low-dimensional columns are arrays in memory;
 - a batch is one numpy gather per key over the window indices of all its samples, assembled in a
@@ -120,7 +121,7 @@ def frame_cache(root: Path, keys: list[str], shapes: dict[str, tuple[int, ...]],
             if pid.isdigit() and not _pid_alive(int(pid)):
                 shutil.rmtree(leftover, ignore_errors=True)
         for stale in cache.iterdir():  # caches of this folder's earlier content
-            if not stale.name.startswith("."):
+            if not stale.name.startswith(".") and stale.name != final.name:
                 shutil.rmtree(stale, ignore_errors=True)
         _write_cache(root, keys, shapes, frames, final)
     arrays = {key: np.load(final / f"{key}.npy", mmap_mode="r") for key in keys}
@@ -157,7 +158,7 @@ class FrameLoader:
         self.sampler = sampler
         self.batch_size = batch_size
         self.device = torch.device(device)
-        self.image_keys = [k for k in meta.camera_keys]
+        self.image_keys = list(meta.camera_keys)
         if meta.video_keys:
             raise ValueError(f"FrameLoader reads image datasets; {dataset.repo_id} stores video {meta.video_keys}")
         frames = meta.total_frames
