@@ -6,6 +6,8 @@ here is LeRobot's own default (``DiffusionConfig``, ``TrainPipelineConfig``)."""
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas.vocabulary import Origin
@@ -65,6 +67,13 @@ class PolicyConfig(BaseModel):
     save_freq: int = Field(default=10_000, ge=1, description="LeRobot checkpoint every N updates (the resume point)")
     log_freq: int = Field(default=100, ge=1, description="loss and learning rate to MLflow every N updates")
     num_workers: int = Field(default=4, ge=0, description="data-loader worker processes")
+    loader: Literal["lerobot", "frames"] = Field(
+        default="frames",
+        description="where training batches come from: 'frames' = touch2robot.policy.loader.FrameLoader (every frame "
+        "decoded once into a cached memory map, batches gathered by index, images made float on the device; the same "
+        "batches in the same order, bench/policy_loader.py: many times LeRobot's rate), 'lerobot' = LeRobot's "
+        "DataLoader (PNG decodes per sample, num_workers processes)",
+    )
     device: str | None = Field(default=None, description="torch device; None = CUDA when available, else CPU")
     seed: int = Field(default=1000, description="training seed (LeRobot's default)")
     # --- closed-loop evaluation

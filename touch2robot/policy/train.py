@@ -15,7 +15,10 @@ as a ``lerobot-train`` command line.
 
 One difference in loading: ``touch2robot.policy.reader.column_views`` makes the dataset read its
 observation/action windows from single-column views (LeRobot PR #4314, unreleased in 0.6.1).
-Without it every window row decodes both camera images, a third of a CPU update.
+Without it every window row decodes both camera images, a third of a CPU update. And by default
+(``PolicyConfig.loader = "frames"``) the batches come from ``touch2robot.policy.loader.FrameLoader``:
+LeRobot's batches in the sampler's order from frames decoded once (bench/policy_loader.py), drawing
+from torch's RNG as LeRobot's DataLoader does, so either loader trains the same weights.
 """
 
 from __future__ import annotations
@@ -186,6 +189,7 @@ def train(
     from lerobot.utils.random_utils import get_rng_state, set_rng_state, set_seed
     from lerobot.utils.utils import cycle
 
+    from touch2robot.policy.loader import FrameLoader
     from touch2robot.policy.reader import column_views
 
     output_dir = Path(output_dir)
@@ -238,19 +242,24 @@ def train(
             # uninterrupted run drew it at the epoch's start, before the checkpoint's RNG state was
             # saved, so a mid-epoch resume puts that state back after its first batch
             checkpoint_rng = get_rng_state()
-    loader = torch.utils.data.DataLoader(
-        dataset,
-        batch_size=pipeline.batch_size,
-        sampler=sampler,
-        num_workers=pipeline.num_workers,
-        pin_memory=accelerator.device.type == "cuda",
-        drop_last=False,
-        persistent_workers=pipeline.num_workers > 0,
-        prefetch_factor=pipeline.prefetch_factor if pipeline.num_workers > 0 else None,
-    )
-    policy, optimizer, loader, scheduler = accelerator.prepare(policy, optimizer, loader, scheduler)
-    if step:  # the prepared loader sets the sampler's epoch to its own count of epochs, from 0
-        loader.set_epoch(position["epoch"])  # (huggingface/lerobot#4692)
+    if cfg.loader == "frames":
+        # the same batches in the same order as LeRobot's DataLoader below, on the device already
+        loader = FrameLoader(dataset, sampler, pipeline.batch_size, accelerator.device)
+        policy, optimizer, scheduler = accelerator.prepare(policy, optimizer, scheduler)
+    else:
+        data_loader = torch.utils.data.DataLoader(
+            dataset,
+            batch_size=pipeline.batch_size,
+            sampler=sampler,
+            num_workers=pipeline.num_workers,
+            pin_memory=accelerator.device.type == "cuda",
+            drop_last=False,
+            persistent_workers=pipeline.num_workers > 0,
+            prefetch_factor=pipeline.prefetch_factor if pipeline.num_workers > 0 else None,
+        )
+        policy, optimizer, loader, scheduler = accelerator.prepare(policy, optimizer, data_loader, scheduler)
+        if step:  # the prepared loader sets the sampler's epoch to its own count of epochs, from 0
+            loader.set_epoch(position["epoch"])  # (huggingface/lerobot#4692)
     # update_policy also records the peak GPU memory (gpu_mem_gb) wherever CUDA is available
     meters = {
         name: AverageMeter(name) for name in ("loss", "grad_norm", "lr", "update_s", "dataloading_s", "gpu_mem_gb")
