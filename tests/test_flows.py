@@ -54,9 +54,9 @@ def _lake_state(data: Path) -> dict[str, int]:
     return {str(p.relative_to(data)): p.stat().st_mtime_ns for p in (data / "lake").rglob("*.parquet")}
 
 
-def test_cache_survives_a_new_process(smoke_data: Path, tmp_path: Path) -> None:
+def test_cache_survives_a_new_process(replay_data: Path, tmp_path: Path) -> None:
     data = tmp_path / "data"
-    _copy_recordings(smoke_data, data)
+    _copy_recordings(replay_data, data)  # glove sessions, twin replays and their calibrations
     first = _run(data)
     assert "'quarantined': 0" in first.replace('"', "'") or '"quarantined": 0' in first
     state = _lake_state(data)

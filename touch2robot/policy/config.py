@@ -66,7 +66,7 @@ class PolicyConfig(BaseModel):
     # --- training loop
     save_freq: int = Field(default=10_000, ge=1, description="LeRobot checkpoint every N updates (the resume point)")
     log_freq: int = Field(default=100, ge=1, description="loss and learning rate to MLflow every N updates")
-    num_workers: int = Field(default=4, ge=0, description="data-loader worker processes")
+    num_workers: int = Field(default=4, ge=0, description="data-loader worker processes (loader 'lerobot' only)")
     loader: Literal["lerobot", "frames"] = Field(
         default="frames",
         description="where training batches come from: 'frames' = touch2robot.policy.loader.FrameLoader (every frame "
