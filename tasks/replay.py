@@ -10,7 +10,10 @@ import pandas as pd
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
+from schemas.tables import SCHEMAS
 from tasks.common import ALWAYS_RUN, cache_policy, retry_unless_lost_physics
+from touch2robot.datasets import EVALUATION_IDS
+from touch2robot.evaluate import replace_table
 from touch2robot.sim.config import SimConfig
 from touch2robot.twin.config import TwinConfig
 from touch2robot.twin.plan import ReplayJob, Skipped
@@ -47,7 +50,7 @@ def replay_on_twin(job: ReplayJob, rollouts_digest: str, sim: SimConfig, twin: T
 
     table = pq.read_table(job.rollouts_file)
     rollout = table.filter(pc.field("rollout_id") == job.trajectory).sort_by("step")
-    row = _row(job, REPLAYED, "")
+    row = _job_row(job)
     try:
         outcome = replay_rollout(
             rollout,
@@ -69,56 +72,41 @@ def replay_on_twin(job: ReplayJob, rollouts_digest: str, sim: SimConfig, twin: T
     }
 
 
-def _row(job: ReplayJob, status: str, reason: str) -> dict:
-    return {
-        "task": job.task,
-        "method": job.method,
-        "origin": job.origin,
-        "trajectory": job.trajectory,
-        "reference_id": job.reference_id,
-        "replay_file": job.replay_path.name,
-        "calibration_file": job.calibration_path.name,
+def _row(task_name: str, method: str, status: str, reason: str, **values: object) -> dict:
+    """A ``replays`` row: the given columns, NULL elsewhere."""
+    return dict.fromkeys(SCHEMAS["replays"].names) | {
+        "task": task_name,
+        "method": method,
         "status": status,
         "reason": reason,
         "rig": TWIN_RIG,
-        "duration_s": None,
-        "peak_force": None,
-        "contact_fraction": None,
-        "perturbation": None,
+        **values,
     }
+
+
+def _job_row(job: ReplayJob) -> dict:
+    return _row(
+        job.task,
+        job.method,
+        REPLAYED,
+        "",
+        origin=job.origin,
+        trajectory=job.trajectory,
+        reference_id=job.reference_id,
+        replay_file=job.replay_path.name,
+        calibration_file=job.calibration_path.name,
+    )
 
 
 def skipped_rows(skipped: list[Skipped]) -> list[dict]:
     """``replays`` rows of what had nothing to replay."""
-    return [
-        {
-            "task": s.task,
-            "method": s.method,
-            "origin": None,
-            "trajectory": None,
-            "reference_id": None,
-            "replay_file": None,
-            "calibration_file": None,
-            "status": SKIPPED,
-            "reason": s.reason,
-            "rig": TWIN_RIG,
-            "duration_s": None,
-            "peak_force": None,
-            "contact_fraction": None,
-            "perturbation": None,
-        }
-        for s in skipped
-    ]
+    return [_row(s.task, s.method, SKIPPED, s.reason) for s in skipped]
 
 
 @task(**ALWAYS_RUN)
 def store_replays(lake: str, rows: list[dict]) -> list[str]:
     """Make ``rows`` the whole ``replays`` table (one file per task x method). Runs every time, like the
     evaluation tables: the table says what this run's replays are."""
-    from schemas.tables import SCHEMAS
-    from touch2robot.datasets import EVALUATION_IDS
-    from touch2robot.evaluate import replace_table
-
     frame = pd.DataFrame(rows, columns=SCHEMAS["replays"].names)
     return replace_table(Path(lake), "replays", frame, EVALUATION_IDS["replays"].columns)
 

@@ -17,14 +17,13 @@ from schemas.glove import GLOVE_JOINT_NAMES, region_taxels
 from schemas.tables import HUMAN_REGIONS
 from schemas.vocabulary import RecordingKind
 from touch2robot import geometry, scenes
-from touch2robot.recording import cdr
+from touch2robot.recording import cdr, clock
 from touch2robot.recording.writer import RecordingWriter
 from touch2robot.synth.config import SynthConfig
 from touch2robot.synth.hand import HumanHand
 from touch2robot.synth.motion import Scene, Trajectory, taxel_forces_along
 from touch2robot.synth.sensors import glove_readings
 
-EPOCH_NS = 1_767_225_600 * 10**9  # 2026-01-01T00:00:00Z: recordings start from here
 CONTACT_N = 0.5
 _REGION_IDX = {r: region_taxels(r) for r in HUMAN_REGIONS}
 
@@ -75,12 +74,6 @@ def _start_offset_s(job: RecordingJob) -> int:
     return zlib.crc32(job.stem.encode()) % 10**6
 
 
-def _stamps(duration: float, rate: float, rng: np.random.Generator) -> np.ndarray:
-    """Sensor times (s): a stream starts a few ms late and ticks with a little jitter."""
-    t = rng.uniform(0.0, 0.01) + np.arange(0.0, duration, 1.0 / rate)
-    return t + rng.uniform(0.0, 0.2 / rate, t.size)
-
-
 def _region_forces(taxel_force: np.ndarray) -> np.ndarray:
     return np.stack([taxel_force[:, _REGION_IDX[r]].sum(axis=1) for r in HUMAN_REGIONS], axis=1)
 
@@ -115,16 +108,16 @@ def _write_glove(config: SynthConfig, job: RecordingJob, path: Path, gt_path: Pa
     hand, traj, scene = _demonstration(config, job)
     rng = _rng(config, job, 1)
     duration = float(traj.t[-1])
-    t0_ns = EPOCH_NS + _start_offset_s(job) * 10**9
-    t_tax = _stamps(duration, 100.0, rng)
+    t0_ns = clock.EPOCH_NS + _start_offset_s(job) * 10**9
+    t_tax = clock.stamps(duration, 100.0, rng)
     force = taxel_forces_along(hand, scene, traj.sample(t_tax))
     raw = glove_readings(force, t_tax, rng)
-    t_hand = _stamps(duration, 60.0, rng)
+    t_hand = clock.stamps(duration, 60.0, rng)
     hand_traj = traj.sample(t_hand)
     joints = hand_traj.joints + rng.normal(0.0, 0.01, hand_traj.joints.shape)
     wrist_pos = hand_traj.wrist_pos + rng.normal(0.0, 0.001, hand_traj.wrist_pos.shape)
     keypoints = geometry.transform_points(hand.forward(joints).keypoints, wrist_pos, hand_traj.wrist_quat)
-    t_obj = _stamps(duration, 100.0, rng)
+    t_obj = clock.stamps(duration, 100.0, rng)
     obj = traj.sample(t_obj)
     obj_pos = obj.object_pos + rng.normal(0.0, 0.0005, obj.object_pos.shape)
 

@@ -32,6 +32,7 @@ from mujoco import rollout as mj_rollout
 from schemas.messages import LEAP_JOINT_NAMES, REPLAY_TOPICS
 from schemas.vocabulary import RecordingKind
 from touch2robot import scenes
+from touch2robot.recording import clock
 from touch2robot.recording.writer import RecordingWriter
 from touch2robot.sim.config import SimConfig
 from touch2robot.sim.env import CONTROL_SPEC, STATE_SPEC
@@ -42,7 +43,6 @@ from touch2robot.twin.config import TwinConfig
 from touch2robot.twin.model import TwinModel, perturb
 from touch2robot.twin.sensors import PalmFsr, TwinTac, sensor_summary
 
-EPOCH_NS = 1_767_225_600 * 10**9  # 2026-01-01T00:00:00Z
 CLOCK_SPAN_S = 10**7  # replays' clocks are spread over ~4 months after the epoch
 CHUNK_S = 0.5  # physics handed to the writer in pieces of this length
 COMMAND_JITTER_S = 0.001  # the command loop's scheduling jitter
@@ -275,10 +275,13 @@ def _effort(model: mujoco.MjModel, ctrl: np.ndarray, q: np.ndarray, qdot: np.nda
     return np.where(model.actuator_forcelimited.astype(bool), np.clip(force, low, high), force)
 
 
+def _seed_list(seed: int | Sequence[int]) -> list[int]:
+    return [seed] if isinstance(seed, int) else [int(v) for v in seed]
+
+
 def _seeds(seed: int | Sequence[int]) -> list[np.random.Generator]:
     """Independent generators of one replay: rig, sensors, stream timing and noise, clock."""
-    base = np.random.SeedSequence(seed if isinstance(seed, int) else list(seed))
-    return [np.random.default_rng(child) for child in base.spawn(4)]
+    return [np.random.default_rng(child) for child in np.random.SeedSequence(_seed_list(seed)).spawn(4)]
 
 
 @dataclass(frozen=True)
@@ -321,18 +324,17 @@ def replay_rollout(
     Raises ValueError for rows that are not one rollout of a known task, LostPhysicsError on lost physics."""
     prepared = twin_physics(rollout, sim, twin, seed)
     cmd, scene, rig, model = prepared.commands, prepared.scene, prepared.rig, prepared.rig.model
-    _, sensor_rng, _, _ = _seeds(seed)
     # the hardware (rig and sensor set) is the seed's; the session is the recording's own: its clock, jitter
     # and noise differ between two replays on one rig, as recordings made one after another do (two
     # byte-identical calibrations would be one recording to the ingest)
-    session = [*(_seeds(seed)[0].integers(0, 2**31, 2)), zlib.crc32(Path(replay_path).name.encode())]
-    stream_rng, clock_rng = _seeds([int(v) for v in session])[2:]
+    sensor_rng = _seeds(seed)[1]
+    _, _, stream_rng, clock_rng = _seeds([*_seed_list(seed), zlib.crc32(Path(replay_path).name.encode())])
     twintac, fsr = TwinTac.draw(twin, sensor_rng), PalmFsr.draw(twin, sensor_rng)
     dt = model.opt.timestep
     n_steps = len(prepared.control)
     physics = _Physics(cmd.task, model, prepared.data, prepared.initial_state, prepared.control)
     try:
-        replay_t0 = EPOCH_NS + round(clock_rng.uniform(0, CLOCK_SPAN_S) * 1e9)
+        replay_t0 = clock.EPOCH_NS + round(clock_rng.uniform(0, CLOCK_SPAN_S) * 1e9)
         calibration_s = twin.calibration_s
         calibration_t0 = replay_t0 - round((calibration_s + clock_rng.uniform(*CALIBRATION_GAP_S)) * 1e9)
         layout = _Layout.plan(sim, n_steps, dt, stream_rng)
@@ -367,9 +369,9 @@ def _write_calibration(
     writer: RecordingWriter, twintac: TwinTac, t0_ns: int, duration: float, rng: np.random.Generator
 ) -> None:
     """The unloaded TwinTac recording: the same sensor set, at this recording's own offset."""
-    t = streams.stamps(duration, RATE_HZ[TWINTAC], rng)
+    t = clock.stamps(duration, RATE_HZ[TWINTAC], rng)
     raw = twintac.read(np.zeros((len(t), 4)), t, twintac.recording_offset(rng), twintac.white_noise(len(t), rng))
-    stamp = streams.to_ns(t0_ns, t)
+    stamp = clock.to_ns(t0_ns, t)
     for s, message in zip(stamp.tolist(), streams.encode_tactile(stamp, "twintac", raw), strict=True):
         writer.write(TWINTAC, s, message)
 
@@ -388,7 +390,7 @@ class _Layout:
     def plan(cls, sim: SimConfig, n_steps: int, dt: float, rng: np.random.Generator) -> _Layout:
         start = rng.uniform(*COMMAND_START_S)
         end = start + n_steps * dt
-        times = {name: streams.stamps(end, RATE_HZ[name], rng) for name in (TWINTAC, FSR, JOINT_STATES)}
+        times = {name: clock.stamps(end, RATE_HZ[name], rng) for name in (TWINTAC, FSR, JOINT_STATES)}
         n_commands = -(-n_steps // sim.substeps)
         times[JOINT_TARGETS] = (
             start + np.arange(n_commands) * sim.control_dt + rng.uniform(0.0, COMMAND_JITTER_S, n_commands)
@@ -427,7 +429,7 @@ def _write_replay(
     encoder_noise = rng.normal(0.0, rig.encoder_noise_rad, (n_js, len(scene.hand_qpos)))
     last = len(cmd.joint_target) - 1
     sent = np.minimum(np.arange(len(times[JOINT_TARGETS])), last)
-    stamp = {name: streams.to_ns(t0_ns, t) for name, t in times.items()}
+    stamp = {name: clock.to_ns(t0_ns, t) for name, t in times.items()}
     region_force = np.empty((n_tt, len(scene.region_sensors)))
 
     def messages(stream: str, lo: int, hi: int) -> list[bytes]:

@@ -1,7 +1,6 @@
-"""Message timing and batch CDR encoding of the twin's recordings.
+"""Batch CDR encoding of the twin's recordings (their timing: ``touch2robot.recording.clock``).
 
-A rig's streams tick at their nominal rates from slightly different starts with a little jitter
-(``stamps``). Encoding: every message of a stream has the same layout (same frame id, joint names
+Encoding: every message of a stream has the same layout (same frame id, joint names
 and array lengths), so one message is encoded with ``touch2robot.recording.cdr`` as a template and
 the rest are that template with the stamp and the numeric payload written in place, all messages of
 a batch at once. The per-message encoders cost more than the physics of a replay; this costs
@@ -16,18 +15,6 @@ from touch2robot.recording import cdr
 
 _STAMP_AT = 4  # after the 4-byte encapsulation header: int32 sec, uint32 nanosec
 _F64 = 8
-
-
-def stamps(duration: float, rate: float, rng: np.random.Generator, start: float = 0.0) -> np.ndarray:
-    """Sample times (s) of a stream over ``duration`` s from ``start``: it begins up to 10 ms late and
-    ticks at ``rate`` with up to a fifth of a period of jitter (strictly increasing)."""
-    t = start + rng.uniform(0.0, 0.01) + np.arange(0.0, duration, 1.0 / rate)
-    return t + rng.uniform(0.0, 0.2 / rate, t.size)
-
-
-def to_ns(t0_ns: int, t: np.ndarray) -> np.ndarray:
-    """Absolute stamps (int64 ns) of times ``t`` (s) after ``t0_ns``."""
-    return t0_ns + np.round(t * 1e9).astype(np.int64)
 
 
 def _patch(template: bytes, stamp_ns: np.ndarray, fields: list[tuple[int, np.ndarray]]) -> list[bytes]:
