@@ -86,7 +86,15 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -
     layout = DataLayout.from_env(data)
     settings = config.model_dump(
         mode="json",
-        exclude={*DATASET_FIELDS, "eval_episodes", "eval_batch", "eval_seed", "object_noise_m", "video_episodes"},
+        exclude={
+            *DATASET_FIELDS,
+            "keep_checkpoints",
+            "eval_episodes",
+            "eval_batch",
+            "eval_seed",
+            "object_noise_m",
+            "video_episodes",
+        },
     )
     key = _digest(
         {"dataset": dataset["digest"], "references": dataset["references"], "frames": dataset["frames"], **settings}

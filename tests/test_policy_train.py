@@ -41,7 +41,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory):
     summary = build_dataset(base / "ds", "pick", "touch2robot", rollouts, build_scene("pick", sim), sim, CONFIG)
     logs: list[tuple[int, dict]] = []
     # checkpoints every 8 updates: test_a_resumed_training_equals_the_uninterrupted_one resumes from two
-    saving = CONFIG.model_copy(update={"save_freq": 8})
+    saving = CONFIG.model_copy(update={"save_freq": 8, "keep_checkpoints": 10})
     result = train(Path(summary.root), summary.repo_id, saving, base / "out", on_log=lambda s, m: logs.append((s, m)))
     return summary, rollouts, result, logs, base
 
@@ -59,7 +59,8 @@ def test_training_resumes_from_the_last_checkpoint(trained) -> None:
     summary, _, _, _, base = trained
     checkpoint = last_checkpoint(base / "out")
     assert checkpoint is not None and checkpoint.name == f"{CONFIG.steps:06d}"
-    more = train(Path(summary.root), summary.repo_id, CONFIG, base / "out", steps=CONFIG.steps + CONFIG.log_freq)
+    keeping = CONFIG.model_copy(update={"keep_checkpoints": 10})  # the checkpoints the next test resumes from
+    more = train(Path(summary.root), summary.repo_id, keeping, base / "out", steps=CONFIG.steps + CONFIG.log_freq)
     assert more.resumed_from == CONFIG.steps and more.steps == CONFIG.steps + CONFIG.log_freq
     assert np.isfinite(more.last_loss)
 
@@ -104,6 +105,9 @@ def test_a_time_budget_or_a_stop_ends_training_early_with_a_checkpoint_to_resume
         should_stop=lambda: True,
     )
     assert more.resumed_from == 1 and more.steps == 2
+    # policy.keep_checkpoints (1): the first call's checkpoint went once the second's was complete
+    kept = sorted(p.name for p in (base / "timed" / "checkpoints").iterdir())
+    assert kept == [Path(more.policy_dir).parent.name, "last"]
     # the learning rate follows the schedule of ``total`` updates: right after the smoke profile's
     # 2 warm-up updates it is at its peak (a schedule of 2 updates would have decayed it to 0)
     assert CONFIG.scheduler_warmup_steps == 2 and [s for s, _ in logs] == [2]

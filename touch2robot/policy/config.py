@@ -65,6 +65,12 @@ class PolicyConfig(BaseModel):
     scheduler_warmup_steps: int | None = Field(default=None, ge=0, description="LR warm-up updates")
     # --- training loop
     save_freq: int = Field(default=10_000, ge=1, description="LeRobot checkpoint every N updates (the resume point)")
+    keep_checkpoints: int = Field(
+        default=1,
+        ge=1,
+        description="newest checkpoints kept in a training folder (older ones are deleted once a newer one is "
+        "complete): each holds the model and its Adam state, 277 MB at the smoke profile's size",
+    )
     log_freq: int = Field(default=100, ge=1, description="loss and learning rate to MLflow every N updates")
     num_workers: int = Field(default=4, ge=0, description="data-loader worker processes (loader 'lerobot' only)")
     loader: Literal["lerobot", "frames"] = Field(

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -123,6 +124,16 @@ def last_checkpoint(output_dir: Path) -> Path | None:
     """The output folder's last complete checkpoint (LeRobot's ``checkpoints/last`` link)."""
     last = Path(output_dir) / CHECKPOINTS / LAST
     return last.resolve() if (last / PRETRAINED).is_dir() and (last / "training_state").is_dir() else None
+
+
+def _prune_checkpoints(output_dir: Path, keep: int) -> None:
+    """Delete all but the newest ``keep`` step checkpoints; the one ``last`` names always stays."""
+    folder = Path(output_dir) / CHECKPOINTS
+    last = last_checkpoint(output_dir)
+    steps = sorted(p for p in folder.iterdir() if p.name.isdigit() and not p.is_symlink())
+    for stale in steps[:-keep]:
+        if stale != last:
+            shutil.rmtree(stale)
 
 
 def _loss_log(output_dir: Path, upto_step: int) -> list[dict]:
@@ -333,6 +344,7 @@ def train(
                 batch_size=pipeline.batch_size,
             )
             update_last_checkpoint(ckpt)
+            _prune_checkpoints(output_dir, cfg.keep_checkpoints)
         if ending:
             break
     seconds = time.perf_counter() - started
