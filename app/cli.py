@@ -323,7 +323,9 @@ def evaluate(
     ] = None,
 ) -> None:
     """Score every contact source against the human preference (precision/recall/F1/FPR,
-    onset error) and the user study; tables contact_metrics, onset_errors, user_study."""
+    onset error), every replayed trajectory against its replay (tactile fidelity), compare the
+    methods (intervals over demonstrations, paired tests) and the user study; tables
+    contact_metrics, onset_errors, comparison, user_study."""
     _check_profile(profile)
     layout = _layout(data)
     result = _run_flow(

@@ -1,5 +1,5 @@
 """Flow `evaluate`: every evaluated contact source vs the human reference, and the user study
--> lake tables contact_metrics / onset_errors / user_study, MLflow runs, Prefect artefacts."""
+-> lake tables contact_metrics / onset_errors / comparison / user_study, MLflow runs, Prefect artefacts."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from prefect import flow, unmapped
 from tasks import tracking
 from tasks.common import stored
 from tasks.evaluate import (
+    compare_methods,
     evaluate_fidelity,
     evaluate_ratings,
     evaluate_source,
@@ -43,6 +44,7 @@ def evaluate(
     ``<data>/recordings/user_study``); rewrite the evaluation tables, refresh the catalog, log
     MLflow runs. ``profile`` labels the runs."""
     layout = DataLayout.from_env(data)
+    config = load_profile(profile)
     lake = str(layout.lake)
     sources = evaluated_sources(layout.lake, reference)
     digests = [folder_digest(source_folders(layout.lake, s, reference)) for s in sources]
@@ -53,7 +55,7 @@ def evaluate(
     fidelity_folders = [CONTACTS.folder(layout.lake) / f"source={FIDELITY_REFERENCE}", ROLLOUTS.folder(layout.lake)]
     fidelity = stored(evaluate_fidelity, layout.results).submit(
         lake,
-        load_profile(profile).teacher.sim.contact_threshold_n,
+        config.teacher.sim.contact_threshold_n,
         folder_digest([*fidelity_folders, RECORDINGS.folder(layout.lake)]),
     )
     per_source.append(fidelity.result())
@@ -63,8 +65,11 @@ def evaluate(
 
     metrics = [r for s in per_source for r in s["contact_metrics"]]
     onsets = [r for s in per_source for r in s["onset_errors"]]
+    clusters = [r for s in per_source for r in s["clusters"]]
+    comparison = stored(compare_methods, layout.results)(clusters, config.comparison)
     store_table(lake, "contact_metrics", metrics)
     store_table(lake, "onset_errors", onsets)
+    store_table(lake, "comparison", comparison)
     store_table(lake, "user_study", [r for s in studies for r in s["rows"]])
     refresh_catalog(str(layout.root))
 

@@ -347,6 +347,58 @@ onset_errors_doc = TableDoc(
     },
 )
 
+# --- The method comparison (flow `evaluate`; rewritten whole, one file per reference source x source) --
+# Every method's scores with cluster-bootstrap intervals over demonstrations, and each method's paired
+# comparison with the compared-with method (touch2robot.comparison documents every choice).
+# Files: lake/comparison/<reference_source>__<source>.parquet
+comparison = pa.schema(
+    [
+        pa.field("reference_source", pa.string(), nullable=False),
+        pa.field("source", pa.string(), nullable=False),
+        pa.field("metric", pa.string(), nullable=False),
+        pa.field("task", pa.string(), nullable=False),
+        pa.field("method", pa.string(), nullable=False),
+        pa.field("estimate", pa.float64()),
+        pa.field("ci_low", pa.float64()),
+        pa.field("ci_high", pa.float64()),
+        pa.field("n_demonstrations", pa.int64(), nullable=False),
+        pa.field("versus", pa.string()),
+        pa.field("difference", pa.float64()),
+        pa.field("difference_ci_low", pa.float64()),
+        pa.field("difference_ci_high", pa.float64()),
+        pa.field("n_paired", pa.int64(), nullable=False),
+        pa.field("wilcoxon_statistic", pa.float64()),
+        pa.field("p_value", pa.float64()),
+        pa.field("p_holm", pa.float64()),
+        pa.field("confidence", pa.float64(), nullable=False),
+        pa.field("n_resamples", pa.int64(), nullable=False),
+    ]
+)
+comparison_doc = TableDoc(
+    "the method comparison: scores with intervals over demonstrations and paired tests against one method",
+    {
+        "reference_source": "what it is scored against: human (preference alignment) | real (tactile fidelity)",
+        "source": "the evaluated source (sim | real | reconstructed)",
+        "metric": "precision | recall | f1 | fpr | onset_error_ms",
+        "task": "the task, or '*' for all (demonstrations of every task pooled)",
+        "method": "the retargeting method",
+        "estimate": "the score over all its demonstrations (counts pooled); NULL when undefined",
+        "ci_low": "lower bound of the percentile interval of a cluster bootstrap over demonstrations",
+        "ci_high": "upper bound of that interval",
+        "n_demonstrations": "demonstrations scored",
+        "versus": "the method it is compared with; NULL on that method's own rows",
+        "difference": "score(versus) - score(method) on the demonstrations both were scored on",
+        "difference_ci_low": "lower bound of the paired cluster-bootstrap interval of the difference",
+        "difference_ci_high": "upper bound of that interval",
+        "n_paired": "demonstrations where both per-demonstration scores are defined (the test's n)",
+        "wilcoxon_statistic": "two-sided Wilcoxon signed-rank statistic over those demonstrations",
+        "p_value": "its p-value",
+        "p_holm": "Holm-adjusted over the methods compared on this reference source, source, task and metric",
+        "confidence": "the intervals' coverage",
+        "n_resamples": "bootstrap resamples per interval",
+    },
+)
+
 user_study = pa.schema(
     [
         pa.field("ratings_file", pa.string(), nullable=False),
@@ -682,6 +734,7 @@ SCHEMAS: dict[str, pa.Schema] = {
     "thresholds": thresholds,
     "contact_metrics": contact_metrics,
     "onset_errors": onset_errors,
+    "comparison": comparison,
     "user_study": user_study,
     "retargeted": retargeted,
     "rollouts": rollouts,
@@ -707,6 +760,7 @@ DOCS: dict[str, TableDoc] = {
     "thresholds": thresholds_doc,
     "contact_metrics": contact_metrics_doc,
     "onset_errors": onset_errors_doc,
+    "comparison": comparison_doc,
     "user_study": user_study_doc,
     "retargeted": retargeted_doc,
     "rollouts": rollouts_doc,

@@ -15,6 +15,7 @@ from schemas.tables import SCHEMAS
 from tasks import tracking
 from tasks.common import ALWAYS_RUN, cache_policy
 from touch2robot import evaluate as ev
+from touch2robot.comparison.config import ComparisonConfig
 from touch2robot.datasets import EVALUATION_IDS
 from touch2robot.metrics import ALL
 from touch2robot.settings import DataLayout
@@ -55,6 +56,11 @@ def _records(frame: pd.DataFrame, table: str) -> list[dict]:
     return pa.Table.from_pandas(frame, schema=SCHEMAS[table], preserve_index=False).to_pylist()
 
 
+def _plain(frame: pd.DataFrame) -> list[dict]:
+    """Rows of a frame with no lake schema as plain dicts (Python scalars: picklable, hashable)."""
+    return pa.Table.from_pandas(frame, preserve_index=False).to_pylist()
+
+
 def _frame(records: list[dict], table: str) -> pd.DataFrame:
     """The inverse of :func:`_records` (None -> NaN in float columns), columns in schema order."""
     return pa.Table.from_pylist(records, schema=SCHEMAS[table]).to_pandas()
@@ -70,7 +76,11 @@ def evaluate_source(lake: str, source: str, reference: str, lake_digest: str) ->
     contacts = ev.read_contacts(Path(lake), [reference, source])
     metrics = ev.contact_metrics_table(contacts, source, reference)
     onsets = ev.onset_errors_table(contacts, ev.read_time_map(Path(lake)), source, reference)
-    return {"contact_metrics": _records(metrics, "contact_metrics"), "onset_errors": _records(onsets, "onset_errors")}
+    return {
+        "contact_metrics": _records(metrics, "contact_metrics"),
+        "onset_errors": _records(onsets, "onset_errors"),
+        "clusters": _plain(ev.demonstration_sums(contacts, onsets, source, reference)),
+    }
 
 
 @task(cache_policy=cache_policy(*_LIBRARY, "touch2robot.ingest"), persist_result=True)
@@ -81,11 +91,26 @@ def evaluate_fidelity(lake: str, contact_threshold_n: float, lake_digest: str) -
     the recordings, the contacts and the rollouts it reads."""
     contacts = ev.fidelity_contacts(Path(lake), contact_threshold_n)
     no_time_map = SCHEMAS["time_map"].empty_table().to_pandas()  # both sides carry t_ref already
-    metrics, onsets = [], []
+    demonstration_of = ev.replay_demonstrations(Path(lake))
+    metrics, onsets, clusters = [], [], []
     for source in sorted(set(contacts["source"]) - {ev.FIDELITY_REFERENCE}):
+        scored = ev.onset_errors_table(contacts, no_time_map, source, ev.FIDELITY_REFERENCE)
         metrics += _records(ev.contact_metrics_table(contacts, source, ev.FIDELITY_REFERENCE), "contact_metrics")
-        onsets += _records(ev.onset_errors_table(contacts, no_time_map, source, ev.FIDELITY_REFERENCE), "onset_errors")
-    return {"contact_metrics": metrics, "onset_errors": onsets}
+        onsets += _records(scored, "onset_errors")
+        sums = ev.demonstration_sums(contacts, scored, source, ev.FIDELITY_REFERENCE, demonstration_of)
+        clusters += _plain(sums)
+    return {"contact_metrics": metrics, "onset_errors": onsets, "clusters": clusters}
+
+
+@task(cache_policy=cache_policy(*_LIBRARY, "touch2robot.comparison.statistics"), persist_result=True)
+def compare_methods(clusters: list[dict], config: ComparisonConfig) -> list[dict]:
+    """The ``comparison`` rows: every method's scores with cluster-bootstrap intervals over demonstrations,
+    and each method's paired difference and Wilcoxon test against ``config.versus``, Holm-adjusted."""
+    from touch2robot.comparison.statistics import comparison_table
+
+    frame = pd.DataFrame.from_records(clusters, columns=ev.CLUSTER_TABLE_COLUMNS)
+    table = comparison_table(frame, str(config.versus), config.confidence, config.n_resamples, config.seed)
+    return _records(table, "comparison")
 
 
 @task(cache_policy=cache_policy(*_LIBRARY), persist_result=True, task_run_name="user-study-{ratings_sha256:.12}")

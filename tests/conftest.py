@@ -24,6 +24,12 @@ os.environ.pop("MLFLOW_TRACKING_URI", None)
 os.environ.pop("PREFECT_API_URL", None)
 
 
+def pytest_configure(config: pytest.Config) -> None:
+    """pytest's own temporary folders go into the session's folder too (unless --basetemp says where)."""
+    if config.option.basetemp is None:
+        config.option.basetemp = str(_SESSION_DIR / "pytest")
+
+
 def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
     """The session's folder (lakes, checkpoints, Prefect home: gigabytes) goes when every test
     passed; after a failure it stays for a look, with the failed tests' own folders in it."""

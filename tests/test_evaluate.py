@@ -354,6 +354,24 @@ def test_flow_scores_tactile_fidelity_against_the_replays(evaluated: tuple[Path,
     assert (o[o["valid"]]["error_ms"] < 500).all()
 
 
+def test_flow_compares_the_methods_over_demonstrations(evaluated: tuple[Path, dict]) -> None:
+    """The comparison table's pooled estimates are contact_metrics' and onset_errors' figures, with
+    intervals over the demonstrations; fidelity's replays count as the glove sessions they followed."""
+    data, _ = evaluated
+    c = _table(data, "SELECT * FROM comparison")
+    assert set(zip(c["reference_source"], c["source"], strict=True)) == {("human", "real"), ("real", "sim")}
+    assert set(c["metric"]) == {"precision", "recall", "f1", "fpr", "onset_error_ms"}
+    m = _table(data, "SELECT * FROM contact_metrics WHERE region = '*'")
+    o = _table(data, "SELECT * FROM onset_errors WHERE sequence_id = '*' AND region = '*'")
+    for row in c.to_dict("records"):
+        keys = {k: str(row[k]) for k in ("reference_source", "source", "task")}
+        scored = _row(o, **keys)["error_ms"] if row["metric"] == "onset_error_ms" else _row(m, **keys)[row["metric"]]
+        assert row["estimate"] == pytest.approx(scored, nan_ok=True), row
+        assert row["n_demonstrations"] == (4 if row["task"] == ALL else 1) and row["versus"] is None
+        if row["n_demonstrations"] > 1 and np.isfinite(row["estimate"]):
+            assert row["ci_low"] <= row["estimate"] <= row["ci_high"], row
+
+
 def test_flow_rerun_replaces_and_follows_the_sources(evaluated: tuple[Path, dict]) -> None:
     from flows.evaluate import evaluate
 

@@ -30,7 +30,6 @@ from touch2robot.policy.dataset import (
     read_rollouts,
     sources,
 )
-from touch2robot.policy.evaluate import wilson_interval
 from touch2robot.policy.reader import column_views
 from touch2robot.policy.train import lerobot_train_args, pipeline_config
 from touch2robot.sim.config import SimConfig
@@ -211,15 +210,6 @@ def test_bad_rollouts_file_is_named(tmp_path: Path, lake: Path) -> None:
     pq.write_table(gap, bad)
     with pytest.raises(RolloutError, match="expected 0, 1, 2"):
         read_rollouts(bad)
-
-
-def test_wilson_interval_matches_statsmodels() -> None:
-    from statsmodels.stats.proportion import proportion_confint
-
-    for k, n in ((0, 10), (3, 10), (10, 10), (17, 50)):
-        np.testing.assert_allclose(
-            wilson_interval(k, n), np.asarray(proportion_confint(k, n, method="wilson")), atol=1e-9
-        )
 
 
 @pytest.mark.slow

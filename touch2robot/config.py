@@ -12,6 +12,7 @@ from pathlib import Path
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from touch2robot.comparison.config import ComparisonConfig
 from touch2robot.contacts.config import ContactsConfig
 from touch2robot.policy.config import PolicyConfig
 from touch2robot.retarget.config import RetargetConfig
@@ -47,6 +48,7 @@ class Profile(BaseModel):
     policy: PolicyConfig = PolicyConfig()
     replay: ReplayConfig = ReplayConfig()
     twin: TwinConfig = TwinConfig()
+    comparison: ComparisonConfig = ComparisonConfig()
 
     @model_validator(mode="after")
     def _one_training_per_process(self) -> Profile:

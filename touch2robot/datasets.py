@@ -268,6 +268,7 @@ _RECORDING_TABLES = (
 EVALUATION_IDS = {
     "contact_metrics": KeyedIdFormat(("source", "method")),
     "onset_errors": KeyedIdFormat(("source", "method")),
+    "comparison": KeyedIdFormat(("reference_source", "source")),
     "user_study": KeyedIdFormat(("ratings_file",)),
     "replays": KeyedIdFormat(("task", "method")),
 }

@@ -28,6 +28,7 @@ import pyarrow.parquet as pq
 from schemas.tables import PARTITIONS, ROBOT_REGIONS, SCHEMAS
 from schemas.vocabulary import Origin, RecordingKind, RecordingStatus, Source
 from touch2robot import lake as lake_io
+from touch2robot.comparison.statistics import CLUSTER_COLUMNS
 from touch2robot.contacts import long_rows
 from touch2robot.datasets import LAKE, folder_digest
 from touch2robot.datasets import safe_file_id as file_id
@@ -41,10 +42,12 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ALL",
+    "CLUSTER_TABLE_COLUMNS",
     "CONTACT_COLUMNS",
     "FIDELITY_REFERENCE",
     "REFERENCE_SOURCE",
     "contact_metrics_table",
+    "demonstration_sums",
     "evaluated_sources",
     "fidelity_contacts",
     "fidelity_replays",
@@ -59,6 +62,7 @@ __all__ = [
     "read_contacts",
     "read_time_map",
     "replace_table",
+    "replay_demonstrations",
     "source_folders",
     "user_study_table",
 ]
@@ -305,6 +309,66 @@ def onset_errors_table(
         )
     table = pd.concat([pairs, *summaries], ignore_index=True).assign(source=eval_source, reference_source=reference)
     return table[names]
+
+
+# --------------------------------------------------------------------------- the comparison's clusters
+
+DEMONSTRATION_KEYS: tuple[str, ...] = ("method", "task", "reference_id")
+CLUSTER_TABLE_COLUMNS: tuple[str, ...] = (
+    "reference_source",
+    "source",
+    "method",
+    "task",
+    "demonstration",
+    *CLUSTER_COLUMNS,
+)
+
+
+def replay_demonstrations(lake: Path) -> dict[str, str]:
+    """Each ingested robot replay's glove demonstration (replay recording_id -> the glove recording its
+    trajectory followed, as the ``real`` contacts name it): tactile fidelity's rows are keyed by replay."""
+    if not lake_io.files(lake, "contacts"):
+        return {}
+    schema = SCHEMAS["contacts"]
+    dataset = ds.dataset(lake / "contacts", format="parquet", partitioning=_contacts_partitioning(), schema=schema)
+    table = dataset.to_table(columns=["sequence_id", "reference_id"], filter=pc.field("source") == Source.REAL)
+    pairs = table.group_by(["sequence_id", "reference_id"]).aggregate([])
+    return dict(zip(pairs["sequence_id"].to_pylist(), pairs["reference_id"].to_pylist(), strict=True))
+
+
+def demonstration_sums(
+    contacts: pd.DataFrame,
+    onsets: pd.DataFrame,
+    eval_source: str,
+    reference: str = REFERENCE_SOURCE,
+    demonstration_of: dict[str, str] | None = None,
+) -> pd.DataFrame:
+    """The clusters of the method comparison (:mod:`touch2robot.comparison.statistics`): per method x task x
+    demonstration, TP/FP/FN/TN over its regions and evaluated sequences, and the sum of its valid onset
+    errors (ms) with their number, from the long ``contacts`` and the ``onset_errors`` rows of ``eval_source``.
+
+    ``demonstration_of`` maps a ``reference_id`` to the human demonstration it stands for (tactile
+    fidelity scores per replay: a replay -> its glove session); by default the reference is the
+    demonstration. Several sequences of one demonstration (rollouts, replays) pool into its cluster.
+    """
+    names = list(CLUSTER_TABLE_COLUMNS)
+    counts = contact_counts_long(contacts, ref_source=reference, eval_source=eval_source, keys=DEMONSTRATION_KEYS)
+    pairs = onsets[(onsets["source"] == eval_source) & (onsets["reference_source"] == reference)]
+    pairs = pairs[pairs["sequence_id"] != ALL]  # the pair rows, not the summaries
+    valid = pairs["valid"].eq(True)
+    onset = (
+        pairs.assign(onset_error_sum_ms=pairs["error_ms"].where(valid, 0.0), onset_pairs=valid.astype(np.int64))
+        .groupby(list(DEMONSTRATION_KEYS), as_index=False)[["onset_error_sum_ms", "onset_pairs"]]
+        .sum()
+    )
+    sums = counts.merge(onset, on=list(DEMONSTRATION_KEYS), how="outer")
+    if sums.empty:
+        return pd.DataFrame({c: pd.Series(dtype=object) for c in names})
+    sums[list(CLUSTER_COLUMNS)] = sums[list(CLUSTER_COLUMNS)].fillna(0)
+    mapping = demonstration_of or {}
+    sums["demonstration"] = [mapping.get(r, r) for r in sums["reference_id"]]
+    sums = sums.groupby(["method", "task", "demonstration"], as_index=False, sort=True)[list(CLUSTER_COLUMNS)].sum()
+    return sums.assign(reference_source=reference, source=eval_source)[names]
 
 
 # --------------------------------------------------------------------------- user study

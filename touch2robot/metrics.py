@@ -338,7 +338,9 @@ def _reference_rows(contacts: pd.DataFrame, ref_source: str) -> pd.DataFrame:
     return ref
 
 
-def contact_counts_long(contacts: pd.DataFrame, *, ref_source: str = Source.HUMAN, eval_source: str) -> pd.DataFrame:
+def contact_counts_long(
+    contacts: pd.DataFrame, *, ref_source: str = Source.HUMAN, eval_source: str, keys: Sequence[str] = CONTACT_KEYS
+) -> pd.DataFrame:
     """TP/FP/FN/TN per (method, task, subject, region) straight from the long ``contacts`` table.
 
     Python twin of the SQL table macro ``contact_counts(ref_source, eval_source)``; both return
@@ -348,11 +350,14 @@ def contact_counts_long(contacts: pd.DataFrame, *, ref_source: str = Source.HUMA
     the evaluated rows. The reference source must hold one sequence per reference_id (true for
     ``"human"``, where ``reference_id == sequence_id``).
 
+    ``keys`` (columns of the evaluated rows) are what the counts are summed by; e.g. ``("method",
+    "task", "reference_id")`` gives one row per demonstration scored.
+
     Returns:
-        DataFrame with columns method, task, subject, region, tp, fp, fn, tn (int64), sorted by
-        the keys; groups with no aligned sample are absent.
+        DataFrame with the ``keys`` columns (default method, task, subject, region) and tp, fp, fn,
+        tn (int64), sorted by the keys; groups with no aligned sample are absent.
     """
-    _check_long(contacts, (*_LONG_COLUMNS, "method", "task", "subject"))
+    _check_long(contacts, (*_LONG_COLUMNS, *keys))
     ref = _reference_rows(contacts, ref_source)
     ev = contacts[contacts["source"] == eval_source]
     ref_groups = {k: g for k, g in ref.groupby(["reference_id", "region"], sort=False)}
@@ -366,14 +371,14 @@ def contact_counts_long(contacts: pd.DataFrame, *, ref_source: str = Source.HUMA
         if ref_t.size > 1 and not np.all(np.diff(ref_t) > 0):
             raise ValueError(f"reference {key[0]!r} region {key[1]!r} has duplicate t_ref values")
         aligned, kept = align_to_reference(ref_t, rg["contact"].to_numpy(dtype=bool)[order], eg["t_ref"].to_numpy())
-        part = eg.loc[kept, list(CONTACT_KEYS)]
+        part = eg.loc[kept, list(keys)]
         e = eg["contact"].to_numpy(dtype=bool)[kept]
         parts.append(part.assign(tp=aligned & e, fp=~aligned & e, fn=aligned & ~e, tn=~aligned & ~e))
     if not parts:
-        out = pd.DataFrame({k: pd.Series(dtype=object) for k in CONTACT_KEYS})
+        out = pd.DataFrame({k: pd.Series(dtype=object) for k in keys})
         return out.assign(**{c: pd.Series(dtype=np.int64) for c in COUNT_COLUMNS})
     flags = pd.concat(parts, ignore_index=True)
-    counts = flags.groupby(list(CONTACT_KEYS), sort=True)[list(COUNT_COLUMNS)].sum()
+    counts = flags.groupby(list(keys), sort=True)[list(COUNT_COLUMNS)].sum()
     return counts.astype(np.int64).reset_index()
 
 

@@ -14,13 +14,13 @@ jitter), and the policy's open-loop fit to its dataset against holding still (``
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from touch2robot.comparison.statistics import wilson_interval
 from touch2robot.policy.config import VIDEO_BACKEND, PolicyConfig
 from touch2robot.policy.dataset import (
     FPS,
@@ -37,17 +37,6 @@ from touch2robot.sim.config import SimConfig
 from touch2robot.sim.env import BatchEnv
 from touch2robot.sim.rsl_env import episode_steps
 from touch2robot.sim.scene import Scene
-
-
-def wilson_interval(successes: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion (95 % by default); (0, 1) when n = 0."""
-    if n <= 0:
-        return 0.0, 1.0
-    p = successes / n
-    denom = 1.0 + z * z / n
-    centre = (p + z * z / (2 * n)) / denom
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return max(0.0, centre - half), min(1.0, centre + half)
 
 
 @dataclass(frozen=True)

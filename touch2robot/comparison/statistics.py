@@ -1,0 +1,267 @@
+"""The method comparison: intervals and paired tests that respect the data's structure.
+
+Every contact score (precision, recall, F1, FPR) and the onset error is a ratio of sums: F1 =
+2 TP / (2 TP + FP + FN) over all time-region samples, E = sum |t_eval - t_ref| / N over the
+valid onset pairs. The samples of one demonstration are not independent (a contact lasts many
+frames; a grasp that misses misses all of them), so the demonstration is the unit of every
+interval and test here, and a score over several demonstrations pools their counts:
+
+- **Interval of a score**: a 95 % percentile interval of a cluster bootstrap over
+  demonstrations. Each of ``n_resamples`` resamples draws the n demonstrations with replacement
+  (``rng.integers(0, n, (n_resamples, n))``) and recomputes the score from the summed counts of
+  the demonstrations drawn: exactly ``scipy.stats.bootstrap(counts, paired=True,
+  method="percentile")`` with each demonstration's counts as one paired observation. Percentile
+  rather than BCa: BCa's jackknife acceleration is undefined when leaving one demonstration out
+  leaves a score undefined (no contact left), and the percentile interval stays in the score's
+  range. A resample whose score is undefined (0/0) carries no score and is left out.
+- **Paired difference** (``versus`` - method, e.g. Touch2Robot - a baseline): on the
+  demonstrations both were scored on only, with the same resampled demonstrations for both, so
+  the interval is that of the difference, not of two independent scores.
+- **Paired test**: the two-sided Wilcoxon signed-rank test over demonstrations of the
+  per-demonstration scores, ``scipy.stats.wilcoxon(d, zero_method="wilcox", correction=False,
+  alternative="two-sided", method="auto")`` with d = versus - method on the demonstrations
+  where both scores are defined. "auto" is SciPy's documented rule: the exact null distribution
+  for n <= 50 distinct non-zero differences, exhaustive sign flips for n <= 13 with ties or
+  zeros, the normal approximation otherwise; all three are deterministic. Fewer than one
+  non-zero difference: p is NaN.
+- **Multiple comparisons**: the p-values of the methods compared with ``versus`` on one metric,
+  source and task form one family, Holm-adjusted (:func:`touch2robot.stats.holm`).
+- **Success rates**: Wilson score intervals (:func:`wilson_interval`).
+
+The random draws of one cell (source, task, method) come from a generator seeded by the
+comparison's seed and the cell's name, so a cell's interval does not change when other cells
+are added or removed. No Prefect imports: the evaluate flow wraps :func:`comparison_table`.
+"""
+
+from __future__ import annotations
+
+import math
+import zlib
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from schemas.tables import SCHEMAS
+from touch2robot.metrics import ALL
+from touch2robot.stats import holm
+
+__all__ = [
+    "CLUSTER_COLUMNS",
+    "METRICS",
+    "Interval",
+    "cluster_weights",
+    "comparison_table",
+    "paired_wilcoxon",
+    "ratio_interval",
+    "wilson_interval",
+]
+
+Z_95 = 1.959963984540054
+
+# Per-demonstration sums a score is computed from (the cluster table's value columns).
+CLUSTER_COLUMNS: tuple[str, ...] = ("tp", "fp", "fn", "tn", "onset_error_sum_ms", "onset_pairs")
+
+# Each metric as numerator / denominator, both linear in CLUSTER_COLUMNS (coefficients in that order).
+METRICS: dict[str, tuple[tuple[float, ...], tuple[float, ...]]] = {
+    "precision": ((1, 0, 0, 0, 0, 0), (1, 1, 0, 0, 0, 0)),
+    "recall": ((1, 0, 0, 0, 0, 0), (1, 0, 1, 0, 0, 0)),
+    "f1": ((2, 0, 0, 0, 0, 0), (2, 1, 1, 0, 0, 0)),
+    "fpr": ((0, 1, 0, 0, 0, 0), (0, 1, 0, 1, 0, 0)),
+    "onset_error_ms": ((0, 0, 0, 0, 1, 0), (0, 0, 0, 0, 0, 1)),
+}
+
+
+def wilson_interval(successes: int, n: int, z: float = Z_95) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (95 % by default); (0, 1) when n = 0."""
+    if n <= 0:
+        return 0.0, 1.0
+    p = successes / n
+    denom = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def cluster_weights(n: int, n_resamples: int, rng: np.random.Generator) -> np.ndarray:
+    """(n_resamples, n) counts: how often each of n clusters is drawn in each bootstrap resample
+    (the draws of ``scipy.stats.bootstrap``: ``rng.integers(0, n, (n_resamples, n))``)."""
+    drawn = rng.integers(0, n, (n_resamples, n))
+    flat = (np.arange(n_resamples)[:, None] * n + drawn).ravel()
+    return np.bincount(flat, minlength=n_resamples * n).reshape(n_resamples, n).astype(np.float64)
+
+
+def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+    out = np.full(np.broadcast(num, den).shape, np.nan)
+    np.divide(num, den, out=out, where=den != 0)
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class Interval:
+    """A point estimate with its percentile bootstrap interval (NaN where undefined)."""
+
+    estimate: float
+    low: float
+    high: float
+
+
+def _percentile(resampled: np.ndarray, estimate: float, confidence: float) -> Interval:
+    finite = resampled[np.isfinite(resampled)]
+    if not np.isfinite(estimate) or finite.size == 0:
+        return Interval(estimate, math.nan, math.nan)
+    alpha = (1.0 - confidence) / 2
+    low, high = np.percentile(finite, [100 * alpha, 100 * (1 - alpha)])
+    return Interval(float(estimate), float(low), float(high))
+
+
+def ratio_interval(num: np.ndarray, den: np.ndarray, weights: np.ndarray, confidence: float = 0.95) -> Interval:
+    """sum(num) / sum(den) over the clusters, with its percentile interval over the resamples
+    ``weights`` (from :func:`cluster_weights`)."""
+    num, den = np.asarray(num, np.float64), np.asarray(den, np.float64)
+    estimate = float(_ratio(num.sum(), den.sum()))
+    return _percentile(_ratio(weights @ num, weights @ den), estimate, confidence)
+
+
+def difference_interval(
+    a: tuple[np.ndarray, np.ndarray], b: tuple[np.ndarray, np.ndarray], weights: np.ndarray, confidence: float = 0.95
+) -> Interval:
+    """ratio(a) - ratio(b) on the same clusters, each resample drawing the same clusters for both."""
+    (na, da), (nb, db) = ((np.asarray(x, np.float64), np.asarray(y, np.float64)) for x, y in (a, b))
+    estimate = float(_ratio(na.sum(), da.sum()) - _ratio(nb.sum(), db.sum()))
+    resampled = _ratio(weights @ na, weights @ da) - _ratio(weights @ nb, weights @ db)
+    return _percentile(resampled, estimate, confidence)
+
+
+@dataclass(frozen=True, slots=True)
+class PairedTest:
+    """Wilcoxon signed-rank test over clusters: n = the pairs where both scores are defined."""
+
+    statistic: float
+    p_value: float
+    n: int
+
+
+def paired_wilcoxon(a: np.ndarray, b: np.ndarray) -> PairedTest:
+    """Two-sided Wilcoxon signed-rank test of per-cluster scores a vs b (the call in the module's docstring)."""
+    d = np.asarray(a, np.float64) - np.asarray(b, np.float64)
+    d = d[np.isfinite(d)]
+    if not np.any(d != 0):
+        return PairedTest(math.nan, math.nan, int(d.size))
+    result = stats.wilcoxon(d, zero_method="wilcox", correction=False, alternative="two-sided", method="auto")
+    return PairedTest(float(result.statistic), float(result.pvalue), int(d.size))  # pyright: ignore[reportAttributeAccessIssue]
+
+
+def _rng(seed: int, *cell: str) -> np.random.Generator:
+    return np.random.default_rng([seed, zlib.crc32("/".join(cell).encode())])
+
+
+def _sums(frame: pd.DataFrame, coefficients: tuple[float, ...]) -> np.ndarray:
+    return frame[list(CLUSTER_COLUMNS)].to_numpy(np.float64) @ np.asarray(coefficients, np.float64)
+
+
+def _cell_rows(
+    clusters: pd.DataFrame, keys: dict, versus: str, confidence: float, n_resamples: int, seed: int
+) -> list[dict]:
+    """Rows of one (reference_source, source, task) cell: every method's scores and, for each method
+    other than ``versus``, its paired comparison with ``versus``."""
+    by_method = {m: g.set_index("demonstration").sort_index() for m, g in clusters.groupby("method", sort=True)}
+    rows = []
+    cell = (str(keys["reference_source"]), str(keys["source"]), str(keys["task"]))
+    for method, own in by_method.items():
+        method = str(method)
+        weights = cluster_weights(len(own), n_resamples, _rng(seed, *cell, method))
+        paired = None
+        if method != versus and versus in by_method:
+            common = own.index.intersection(by_method[versus].index)
+            if len(common):
+                mine, theirs = own.loc[common], by_method[versus].loc[common]
+                paired = (mine, theirs, cluster_weights(len(common), n_resamples, _rng(seed, *cell, method, versus)))
+        for metric, (num_c, den_c) in METRICS.items():
+            num, den = _sums(own, num_c), _sums(own, den_c)
+            score = ratio_interval(num, den, weights, confidence)
+            row = {
+                **keys,
+                "metric": metric,
+                "method": method,
+                "estimate": score.estimate,
+                "ci_low": score.low,
+                "ci_high": score.high,
+                "n_demonstrations": len(own),
+                "versus": None,
+                "difference": math.nan,
+                "difference_ci_low": math.nan,
+                "difference_ci_high": math.nan,
+                "n_paired": 0,
+                "wilcoxon_statistic": math.nan,
+                "p_value": math.nan,
+                "confidence": confidence,
+                "n_resamples": n_resamples,
+            }
+            if paired is not None:
+                mine, theirs, pair_weights = paired
+                a = (_sums(theirs, num_c), _sums(theirs, den_c))
+                b = (_sums(mine, num_c), _sums(mine, den_c))
+                diff = difference_interval(a, b, pair_weights, confidence)
+                test = paired_wilcoxon(_ratio(*a), _ratio(*b))
+                row |= {
+                    "versus": versus,
+                    "difference": diff.estimate,
+                    "difference_ci_low": diff.low,
+                    "difference_ci_high": diff.high,
+                    "n_paired": test.n,
+                    "wilcoxon_statistic": test.statistic,
+                    "p_value": test.p_value,
+                }
+            rows.append(row)
+    return rows
+
+
+def comparison_table(
+    clusters: pd.DataFrame,
+    versus: str,
+    confidence: float = 0.95,
+    n_resamples: int = 10_000,
+    seed: int = 0,
+) -> pd.DataFrame:
+    """Rows of the ``comparison`` table from per-demonstration sums.
+
+    Args:
+        clusters: one row per (reference_source, source, method, task, demonstration) with the sums
+            of :data:`CLUSTER_COLUMNS` over that demonstration's samples (regions pooled).
+        versus: the method every other method is compared with (paired, per cell).
+        confidence: the intervals' coverage.
+        n_resamples: bootstrap resamples per interval.
+        seed: the comparison's seed (each cell draws from its own generator, see the module docstring).
+
+    Returns:
+        Columns as ``schemas.tables.comparison``: per (reference_source, source, task incl. '*', method,
+        metric) the score and interval and, for methods other than ``versus``, the paired difference
+        versus - method, its interval, the Wilcoxon test and the Holm-adjusted p over the methods
+        compared in that (reference_source, source, task, metric).
+    """
+    names = SCHEMAS["comparison"].names
+    needed = ["reference_source", "source", "method", "task", "demonstration", *CLUSTER_COLUMNS]
+    missing = [c for c in needed if c not in clusters.columns]
+    if missing:
+        raise ValueError(f"comparison clusters are missing columns {missing}")
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence must lie in (0, 1), got {confidence}")
+    if clusters.empty:
+        return pd.DataFrame({c: pd.Series(dtype=object) for c in names})
+    duplicated = clusters.duplicated(["reference_source", "source", "method", "task", "demonstration"])
+    if duplicated.any():
+        first = clusters[duplicated].iloc[0]
+        raise ValueError(f"comparison clusters: demonstration {first['demonstration']!r} appears twice in one cell")
+    rows: list[dict] = []
+    for (reference, source), group in clusters.groupby(["reference_source", "source"], sort=True):
+        pooled = group.groupby(["method", "demonstration"], as_index=False)[list(CLUSTER_COLUMNS)].sum()
+        cells = [(task, g) for task, g in group.groupby("task", sort=True)] + [(ALL, pooled)]
+        for task, g in cells:
+            keys = {"reference_source": reference, "source": source, "task": task}
+            rows += _cell_rows(g, keys, versus, confidence, n_resamples, seed)
+    table = pd.DataFrame(rows)
+    family = ["reference_source", "source", "task", "metric"]
+    table["p_holm"] = table.groupby(family, sort=False)["p_value"].transform(lambda p: holm(p.to_numpy()))
+    return table.sort_values(["reference_source", "source", "metric", "task", "method"], ignore_index=True)[names]
