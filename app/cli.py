@@ -98,12 +98,16 @@ def _run_flow[R](entrypoint: str, returns: type[R], **parameters: object) -> R:
     root = layout.root
     log_file = root / "logs" / f"{session.command}-{time.strftime('%Y%m%d-%H%M%S')}.log"
     log_file.parent.mkdir(parents=True, exist_ok=True)
-    # for this process and the task runners' workers: MLflow's records go through logging like
-    # every library's instead of MLflow's own handler on stderr
-    os.environ.update({logs.LOG_FILE_ENV: str(log_file), logs.VERBOSE_ENV: "1" if session.verbose else "0"})
-    os.environ.setdefault("MLFLOW_CONFIGURE_LOGGING", "false")
     console.print(f"[dim]log: {log_file}[/]", highlight=False)
-    with _writer_lock(root), stop_on_termination():
+    with (
+        _command_environ(logs.LOG_FILE_ENV, logs.VERBOSE_ENV),
+        _writer_lock(root),
+        stop_on_termination(),
+    ):
+        # for this process and the task runners' workers: MLflow's records go through logging like
+        # every library's instead of MLflow's own handler on stderr
+        os.environ.update({logs.LOG_FILE_ENV: str(log_file), logs.VERBOSE_ENV: "1" if session.verbose else "0"})
+        os.environ.setdefault("MLFLOW_CONFIGURE_LOGGING", "false")
         # a running `touch2robot ui --start` of this folder serves its database already: its API
         # answers at once, where a server of this command takes seconds to start and warm up
         ui_api = None if os.environ.get("PREFECT_API_URL") else running_ui_api(layout.prefect_home)
@@ -152,6 +156,22 @@ def _run_flow[R](entrypoint: str, returns: type[R], **parameters: object) -> R:
     if not isinstance(result, returns):
         raise TypeError(f"flow {entrypoint} returned a {type(result).__name__}, not a {returns.__name__}")
     return result
+
+
+@contextmanager
+def _command_environ(*names: str) -> Iterator[None]:
+    """The log file a command names for the processes its flow starts is put back when it ends: a later
+    command of the same process (a notebook, a test) must not send its workers' logs into this one's
+    folder. (Its Prefect API stays: the server lives until the process exits and later commands use it.)"""
+    saved = {name: os.environ.get(name) for name in names}
+    try:
+        yield
+    finally:
+        for name, value in saved.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
 
 
 @contextmanager

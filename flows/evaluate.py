@@ -97,6 +97,8 @@ def evaluate(
     return {
         "sources": sources,
         "f1": overall,
+        # every method's F1 over all tasks with its interval and paired comparison (the comparison table's rows)
+        "f1_compared": [r for r in comparison if r["task"] == ALL and r["metric"] == "f1"],
         "ratings": [Path(p).name for p in paths],
         "ratings_skipped": skipped,
         "runs": runs,

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from statistics import fmean
 
 from prefect import flow
@@ -14,7 +15,7 @@ from flows.retarget import retarget
 from flows.student import student
 from flows.synth import synth
 from flows.teachers import teachers
-from schemas.vocabulary import Origin
+from schemas.vocabulary import Origin, Source
 
 
 @flow(name="pipeline", log_prints=True)
@@ -42,6 +43,29 @@ def pipeline(profile: str = "smoke", data: str | None = None, synthesize: bool =
         "evaluate": evaluated,
         "policy": policies,
     }
+
+
+def _by_scoring(rows: list[dict]) -> dict[tuple[str, str], list[dict]]:
+    grouped: dict[tuple[str, str], list[dict]] = {}
+    for row in rows:
+        grouped.setdefault((row["reference_source"], row["source"]), []).append(row)
+    return grouped
+
+
+def _figure(value: float | None, spec: str) -> str:
+    """A figure of the comparison table; undefined ones (NULL: 0/0, a test with no non-zero difference) as n/a."""
+    return "n/a" if value is None or math.isnan(value) else format(value, spec)
+
+
+def _compared(row: dict) -> str:
+    """One method's F1 with its interval and, where paired, the difference the compared-with method makes."""
+    text = f"{row['method']} F1 {_figure(row['estimate'], '.3f')} "
+    text += f"[{_figure(row['ci_low'], '.3f')}, {_figure(row['ci_high'], '.3f')}]"
+    if row["versus"] is not None and row["n_paired"]:
+        text += f" ({row['versus']} - it: {_figure(row['difference'], '+.3f')} "
+        text += f"[{_figure(row['difference_ci_low'], '+.3f')}, {_figure(row['difference_ci_high'], '+.3f')}], "
+        text += f"Holm p {_figure(row['p_holm'], '.2g')}, n {row['n_paired']})"
+    return text
 
 
 def headline(results: dict) -> list[tuple[str, str]]:
@@ -87,7 +111,11 @@ def headline(results: dict) -> list[tuple[str, str]]:
         figures = f"{replayed['replayed']} replayed on the twin, {replayed['skipped']} skipped"
         figures += f", {replayed['failed']} failed"
         lines.append(("replay", figures))
-    if f1_by_source := (results.get("evaluate") or {}).get("f1"):
+    evaluated = results.get("evaluate") or {}
+    for (reference, source), rows in _by_scoring(evaluated.get("f1_compared") or []).items():
+        against = "fidelity" if reference == Source.REAL else f"vs {reference}"
+        lines.append((f"evaluate: {source} {against}", "; ".join(_compared(r) for r in rows)))
+    if not evaluated.get("f1_compared") and (f1_by_source := evaluated.get("f1")):
         lines.append(("evaluate", "contact F1 " + ", ".join(f"{k} {v:.3f}" for k, v in f1_by_source.items())))
     for row in results.get("policy") or []:
         figures = f"success {row['successes']}/{row['episodes']} [{row['ci_low']:.2f}, {row['ci_high']:.2f}]"

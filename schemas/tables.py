@@ -378,7 +378,7 @@ comparison_doc = TableDoc(
     "the method comparison: scores with intervals over demonstrations and paired tests against one method",
     {
         "reference_source": "what it is scored against: human (preference alignment) | real (tactile fidelity)",
-        "source": "the evaluated source (sim | real | reconstructed)",
+        "source": "the evaluated source (sim | real | reconstructed); tactile fidelity: sim, whatever made it",
         "metric": "precision | recall | f1 | fpr | onset_error_ms",
         "task": "the task, or '*' for all (demonstrations of every task pooled)",
         "method": "the retargeting method",

@@ -92,13 +92,13 @@ def evaluate_fidelity(lake: str, contact_threshold_n: float, lake_digest: str) -
     contacts = ev.fidelity_contacts(Path(lake), contact_threshold_n)
     no_time_map = SCHEMAS["time_map"].empty_table().to_pandas()  # both sides carry t_ref already
     demonstration_of = ev.replay_demonstrations(Path(lake))
-    metrics, onsets, clusters = [], [], []
+    metrics, onsets, sums = [], [], []
     for source in sorted(set(contacts["source"]) - {ev.FIDELITY_REFERENCE}):
         scored = ev.onset_errors_table(contacts, no_time_map, source, ev.FIDELITY_REFERENCE)
         metrics += _records(ev.contact_metrics_table(contacts, source, ev.FIDELITY_REFERENCE), "contact_metrics")
         onsets += _records(scored, "onset_errors")
-        sums = ev.demonstration_sums(contacts, scored, source, ev.FIDELITY_REFERENCE, demonstration_of)
-        clusters += _plain(sums)
+        sums.append(ev.demonstration_sums(contacts, scored, source, ev.FIDELITY_REFERENCE, demonstration_of))
+    clusters = _plain(ev.pooled_as(pd.concat(sums, ignore_index=True), ev.FIDELITY_SOURCE)) if sums else []
     return {"contact_metrics": metrics, "onset_errors": onsets, "clusters": clusters}
 
 

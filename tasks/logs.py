@@ -79,6 +79,8 @@ def configure_worker() -> None:
     with ``TOUCH2ROBOT_VERBOSE`` (Prefect's console handler), else its stdout and stderr go to
     the log file as well."""
     log_file = os.environ.get(LOG_FILE_ENV)
+    if log_file:  # the run's folder may have moved or gone since the command began: a worker must still start
+        os.makedirs(os.path.dirname(log_file), exist_ok=True)
     if os.environ.get(VERBOSE_ENV) == "1" or not log_file:
         configure(log_file, None)
         return

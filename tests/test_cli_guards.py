@@ -44,3 +44,7 @@ def test_a_second_writing_command_on_a_held_folder_refuses_naming_the_holder(tmp
         result = runner.invoke(app, ["retarget", "--data", str(data)])
     assert result.exit_code == 1
     assert f"is in use by pid {os.getpid()} (touch2robot run" in _said(result)
+    # the refused command's log file is not left for a later command's workers (its folder may be gone by then)
+    from tasks.logs import LOG_FILE_ENV
+
+    assert LOG_FILE_ENV not in os.environ

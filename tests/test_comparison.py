@@ -184,3 +184,19 @@ def test_bad_clusters_are_refused_with_the_reason() -> None:
         comparison_table(clusters, versus="a", confidence=1.5)
     assert comparison_table(clusters.iloc[:0], versus="a").empty
     assert set(CLUSTER_COLUMNS) <= set(clusters.columns)
+
+
+def test_the_commands_closing_table_gives_each_methods_f1_with_its_interval_and_paired_difference() -> None:
+    from flows.pipeline import headline
+
+    table = comparison_table(_clusters(), versus="a", n_resamples=500, seed=2)
+    rows = pd.DataFrame(table).replace({np.nan: None}).to_dict("records")
+    overall = [r for r in rows if r["task"] == ALL and r["metric"] == "f1"]
+    lines = dict(headline({"evaluate": {"f1_compared": overall, "f1": {"sim/a": 0.5}}}))
+    line = lines["evaluate: sim vs human"]
+    a, b = (next(r for r in overall if r["method"] == m) for m in ("a", "b"))
+    assert f"a F1 {a['estimate']:.3f} [{a['ci_low']:.3f}, {a['ci_high']:.3f}]" in line
+    assert f"b F1 {b['estimate']:.3f}" in line and f"(a - it: {b['difference']:+.3f} [" in line
+    assert f"n {b['n_paired']})" in line and "evaluate" not in lines  # the bare F1 line only without a comparison
+    undefined = {**b, "estimate": None, "ci_low": None, "ci_high": None, "p_holm": None}
+    assert "b F1 n/a [n/a, n/a]" in dict(headline({"evaluate": {"f1_compared": [undefined]}}))["evaluate: sim vs human"]

@@ -45,6 +45,7 @@ __all__ = [
     "CLUSTER_TABLE_COLUMNS",
     "CONTACT_COLUMNS",
     "FIDELITY_REFERENCE",
+    "FIDELITY_SOURCE",
     "REFERENCE_SOURCE",
     "contact_metrics_table",
     "demonstration_sums",
@@ -58,6 +59,7 @@ __all__ = [
     "plot_metrics_by_method",
     "plot_ratings",
     "plot_timeline",
+    "pooled_as",
     "ratings_files",
     "read_contacts",
     "read_time_map",
@@ -369,6 +371,19 @@ def demonstration_sums(
     sums["demonstration"] = [mapping.get(r, r) for r in sums["reference_id"]]
     sums = sums.groupby(["method", "task", "demonstration"], as_index=False, sort=True)[list(CLUSTER_COLUMNS)].sum()
     return sums.assign(reference_source=reference, source=eval_source)[names]
+
+
+FIDELITY_SOURCE = Source.SIM
+"""The source tactile fidelity's comparison rows carry: every replayed trajectory's contacts come from simulation
+(a student's reconstruction is a simulated trajectory too), so the methods pair on one footing whatever made them."""
+
+
+def pooled_as(sums: pd.DataFrame, source: str) -> pd.DataFrame:
+    """Demonstration sums of several evaluated sources as one (their sums added per method x task x
+    demonstration): tactile fidelity compares a student's and a teacher's trajectories alike."""
+    keys = ["reference_source", "method", "task", "demonstration"]
+    pooled = sums.groupby(keys, as_index=False, sort=True)[list(CLUSTER_COLUMNS)].sum()
+    return pooled.assign(source=source)[list(CLUSTER_TABLE_COLUMNS)]
 
 
 # --------------------------------------------------------------------------- user study
