@@ -359,6 +359,16 @@ def evaluate(
 
 
 @app.command()
+def report(profile: ProfileOpt = "smoke", data: DataOpt = None) -> None:
+    """The run's report from the catalog: report.html (self-contained, figures embedded) and report.md
+    under <data>/reports/, the paper's claims stated from the intervals, an artefact and an MLflow run."""
+    _check_profile(profile)
+    layout = _layout(data)
+    result = _run_flow("flows.report:report", dict, profile=profile, data=str(layout.root))
+    _closing(layout, f"report ({profile})", {"report": result})
+
+
+@app.command()
 def policy(
     profile: ProfileOpt = "smoke",
     data: DataOpt = None,

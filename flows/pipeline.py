@@ -11,6 +11,7 @@ from flows.evaluate import evaluate
 from flows.ingest import ingest
 from flows.policy import policy
 from flows.replay import replay
+from flows.report import report
 from flows.retarget import retarget
 from flows.student import student
 from flows.synth import synth
@@ -24,7 +25,7 @@ def pipeline(profile: str = "smoke", data: str | None = None, synthesize: bool =
     in ``<data>/recordings``) -> ingest and contacts -> kinematic retargeting -> teachers and
     their rollouts -> the distilled student and its reconstructions -> every method's trajectories
     replayed on the hardware twin and ingested -> contact evaluation ->
-    robot-demonstration datasets, Diffusion Policies and their closed-loop success."""
+    robot-demonstration datasets, Diffusion Policies and their closed-loop success -> the report."""
     if synthesize:
         synth(profile=profile, data=data)
     ingested = ingest(profile=profile, data=data)
@@ -34,6 +35,7 @@ def pipeline(profile: str = "smoke", data: str | None = None, synthesize: bool =
     replayed = replay(profile=profile, data=data)
     evaluated = evaluate(profile=profile, data=data)
     policies = policy(profile=profile, data=data)
+    reported = report(profile=profile, data=data)
     return {
         "ingest": ingested,
         "retarget": retargeted,
@@ -42,6 +44,7 @@ def pipeline(profile: str = "smoke", data: str | None = None, synthesize: bool =
         "replay": replayed,
         "evaluate": evaluated,
         "policy": policies,
+        "report": reported,
     }
 
 
@@ -121,4 +124,10 @@ def headline(results: dict) -> list[tuple[str, str]]:
         figures = f"success {row['successes']}/{row['episodes']} [{row['ci_low']:.2f}, {row['ci_high']:.2f}]"
         figures += f", progress {row['mean_progress']:.2f}, final loss {row['final_loss']:.4f}"
         lines.append((f"policy: {row['task']} x {row['method']}", figures))
+    if reported := results.get("report"):
+        verdicts = [c["verdict"] for c in reported["claims"]]
+        counted = ", ".join(
+            f"{verdicts.count(v)} {v}" for v in ("holds", "does not hold", "not resolved") if v in verdicts
+        )
+        lines.append(("report", f"{reported['html']} (the paper's claims: {counted or 'none measured'})"))
     return lines

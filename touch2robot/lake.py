@@ -36,7 +36,8 @@ def _sha256(path: Path) -> str:
         return hashlib.file_digest(f, "sha256").hexdigest()
 
 
-def _replace_text(text: str, path: Path) -> None:
+def replace_text(text: str, path: Path) -> None:
+    """Write a text file whole: a temporary sibling renamed over it (a reader never sees half of it)."""
     tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")
     try:
         tmp.write_text(text)
@@ -60,7 +61,7 @@ def write_atomic(table: pa.Table, path: Path) -> Path:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
-    _replace_text(digest, digest_path(path))
+    replace_text(digest, digest_path(path))
     return path
 
 

@@ -1,0 +1,20 @@
+"""Flow `report`: the run's report (report.md, a self-contained report.html, a Prefect artefact and an
+MLflow run) from the catalog's comparison, policy and user-study tables."""
+
+from __future__ import annotations
+
+from prefect import flow
+
+from tasks.ingest import refresh_catalog
+from tasks.report import build_report
+from touch2robot.settings import DataLayout
+
+
+@flow(name="report", log_prints=True)
+def report(profile: str = "smoke", data: str | None = None) -> dict:
+    """Refresh the catalog and write the report of what it holds; ``profile`` names the run's settings."""
+    layout = DataLayout.from_env(data)
+    refresh_catalog(str(layout.root))
+    written = build_report(str(layout.root), profile)
+    print(f"report: {written['html']}")
+    return written

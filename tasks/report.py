@@ -1,0 +1,63 @@
+"""The report task: the catalog's comparison, policy and user-study tables -> report.md and a
+self-contained report.html under <data>/reports/<time>-<profile>/, a Prefect markdown artefact and
+an MLflow run holding the page."""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+from prefect import get_run_logger, task
+from prefect.artifacts import create_markdown_artifact
+
+from tasks import tracking
+from tasks.common import ALWAYS_RUN
+from touch2robot import catalog
+from touch2robot import report as rp
+from touch2robot.config import load_profile
+from touch2robot.settings import DataLayout
+
+
+@task(**ALWAYS_RUN)
+def build_report(data: str, profile: str) -> dict:
+    """Write the run's report from the catalog (refreshed first by the caller) and publish it. Not cached:
+    it reads whatever the catalog holds now, and costs seconds."""
+    import mlflow
+
+    layout = DataLayout.from_env(data)
+    config = load_profile(profile)
+    tables = {
+        name: catalog.query(layout, f"SELECT * FROM {name}").to_pandas()
+        for name in ("comparison", "policy_eval", "user_study")
+    }
+    versus = str(config.comparison.versus)
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
+    provenance = {
+        "profile": config.name,
+        "created": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
+        "seeds": (
+            f"one per stage: teachers {config.teacher.seed}, student {config.student.seed}, replay "
+            f"{config.replay.seed}, policy {config.policy.seed}, bootstrap {config.comparison.seed}"
+        ),
+        "compared with": versus,
+        "code": rp.code_version(),
+        "data": f"{layout.root} (tables digest {rp.table_digest(*tables.values())})",
+    }
+    report = rp.ReportData(tables["comparison"], tables["policy_eval"], tables["user_study"], provenance)
+    report = dataclasses.replace(report, figures=rp.draw_figures(report))
+    folder = layout.reports / f"{stamp}-{config.name}"
+    markdown, page = rp.write_report(folder, report, versus)
+    create_markdown_artifact(markdown.read_text(), key="report", description=f"touch2robot report, {config.name}")
+    tags = {"profile": config.name, "code": provenance["code"], "compared_with": versus}
+    with tracking.stage_run(layout, "report", f"report-{config.name}", tags) as run:
+        mlflow.log_artifact(str(page))
+        mlflow.log_artifact(str(markdown))
+    found = rp.claims(report.comparison, report.policy, versus)
+    get_run_logger().info("report: %s (%d claims stated)", page, len(found))
+    return {
+        "folder": str(folder),
+        "html": str(page),
+        "markdown": str(markdown),
+        "claims": [dataclasses.asdict(c) for c in found],
+        "mlflow_run": run.info.run_id,
+    }

@@ -1,0 +1,201 @@
+"""The report: the `report` flow over a catalog holding a comparison, policy results and a user study
+writes report.md and a self-contained report.html that a real browser (Debian's Chromium, headless,
+driven by Playwright) renders whole, states the paper's claims from the intervals, and is published
+as a Prefect artefact and an MLflow run."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pytest
+
+from schemas.tables import SCHEMAS
+from touch2robot import lake as lake_io
+from touch2robot.comparison.statistics import comparison_table, wilson_interval
+from touch2robot.evaluate import user_study_table
+from touch2robot.metrics import ALL
+from touch2robot.report import claims
+from touch2robot.synth.ratings import synthetic_ratings
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+METHODS = ("touch2robot", "contrack", "dexmachina", "dex-retargeting")
+
+
+def _clusters(seed: int = 0) -> pd.DataFrame:
+    """Four methods on the same 6 demonstrations of two tasks, for fidelity and preference alignment."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for reference, source in (("real", "sim"), ("human", "real")):
+        for task in ("pick", "rotate"):
+            for k in range(6):
+                for method, skill in zip(METHODS, (0.9, 0.6, 0.62, 0.4), strict=True):
+                    pos = int(rng.integers(30, 90))
+                    tp = int(rng.binomial(pos, skill))
+                    fp = int(rng.integers(0, 12))
+                    rows.append(
+                        {
+                            "reference_source": reference,
+                            "source": source,
+                            "method": method,
+                            "task": task,
+                            "demonstration": f"{task}-{k}",
+                            "tp": tp,
+                            "fp": fp,
+                            "fn": pos - tp,
+                            "tn": 300 - pos - fp,
+                            "onset_error_sum_ms": float(rng.uniform(20, 300) * (2 - skill)),
+                            "onset_pairs": 8,
+                        }
+                    )
+    return pd.DataFrame(rows)
+
+
+def _policy_rows() -> pd.DataFrame:
+    rows = []
+    for task, successes in (("pick", (9, 2, 3, 0)), ("rotate", (5, 4, 6, 1))):
+        for method, k in zip(METHODS, successes, strict=True):
+            low, high = wilson_interval(k, 10)
+            rows.append(
+                {
+                    "task": task,
+                    "method": method,
+                    "origin": "teacher",
+                    "profile": "smoke",
+                    "dataset_episodes": 4,
+                    "dataset_frames": 400,
+                    "train_steps": 50,
+                    "final_loss": 0.1,
+                    "episodes": 10,
+                    "successes": k,
+                    "success_rate": k / 10,
+                    "ci_low": low,
+                    "ci_high": high,
+                    "mean_progress": 0.5,
+                    "replay_successes": 5,
+                    "replay_success_rate": 0.5,
+                    "fit_joint_err_rad": 0.01,
+                    "fit_wrist_err_mm": 1.0,
+                    "hold_joint_err_rad": 0.01,
+                    "hold_wrist_err_mm": 1.0,
+                    "episode_steps": 100,
+                    "replans": 7,
+                    "mlflow_run": "none",
+                }
+            )
+    return pd.DataFrame(rows)
+
+
+def _write(lake: Path, table: str, file_id: str, frame: pd.DataFrame) -> None:
+    lake_io.write_rows(lake, table, file_id, pa.Table.from_pandas(frame, schema=SCHEMAS[table], preserve_index=False))
+
+
+@pytest.fixture(scope="module")
+def reported(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict, pd.DataFrame]:
+    from flows.report import report
+
+    data = tmp_path_factory.mktemp("report") / "data"
+    comparison = comparison_table(_clusters(), versus="touch2robot", n_resamples=2000)
+    _write(data / "lake", "comparison", "all", comparison)
+    _write(data / "lake", "policy_eval", "all", _policy_rows())
+    ratings = synthetic_ratings()
+    _write(data / "lake", "user_study", "ratings", user_study_table(ratings, "ratings_SYNTHETIC.csv", "0" * 64, True))
+    return data, report(profile="smoke", data=str(data)), comparison
+
+
+def test_the_report_states_each_claim_from_its_interval(reported) -> None:
+    _, result, comparison = reported
+    found = {c["statement"]: c for c in result["claims"]}
+    f1 = comparison[(comparison["task"] == ALL) & (comparison["metric"] == "f1") & comparison["versus"].notna()]
+    assert len([s for s in found if " F1 " in s]) == len(f1) == 6  # 3 baselines x 2 scored sources
+    for row in f1.to_dict("records"):
+        scope = (
+            "tactile fidelity"
+            if row["reference_source"] == "real"
+            else f"preference alignment ({row['source']} contacts)"
+        )
+        claim = found[f"touch2robot has a higher F1 than {row['method']} ({scope})"]
+        low, high = row["difference_ci_low"], row["difference_ci_high"]
+        expected = "holds" if low > 0 else "does not hold" if high < 0 else "not resolved"
+        assert claim["verdict"] == expected, (row, claim)
+    policy = [c for s, c in found.items() if s.startswith("a policy")]
+    assert len(policy) == 6  # 3 baselines x 2 tasks
+    pick_vs_dex = next(c for c in policy if "dex-retargeting's (pick)" in c["statement"])
+    assert pick_vs_dex["verdict"] == "holds"  # 9/10 [0.60, 0.98] vs 0/10 [0.00, 0.28]
+    rotate_vs_dexmachina = next(c for c in policy if "dexmachina's (rotate)" in c["statement"])
+    assert rotate_vs_dexmachina["verdict"] == "not resolved"  # 5/10 vs 6/10: the intervals overlap
+
+
+def test_claims_of_a_missing_or_reversed_comparison_say_so() -> None:
+    comparison = comparison_table(_clusters(), versus="contrack", n_resamples=500)
+    found = claims(comparison, _policy_rows().iloc[:0], "contrack")
+    over_dex = [c for c in found if "F1 than dex-retargeting" in c.statement]
+    assert over_dex and all(c.verdict == "holds" for c in over_dex)
+    over_t2r = [c for c in found if "F1 than touch2robot" in c.statement]
+    assert over_t2r and all(c.verdict == "does not hold" for c in over_t2r)
+    lone = _policy_rows()
+    lone = lone[lone["method"] != "contrack"]
+    assert {c.verdict for c in claims(comparison.iloc[:0], lone, "contrack")} == {"not measured"}
+
+
+def test_the_report_is_published_as_files_an_artefact_and_an_mlflow_run(reported) -> None:
+    import mlflow
+
+    from tasks import tracking
+    from touch2robot.settings import DataLayout
+
+    data, result, _ = reported
+    page, markdown = Path(result["html"]), Path(result["markdown"])
+    assert page.parent.parent == data / "reports" and markdown.parent == page.parent
+    text = markdown.read_text()
+    for heading in ("## What this run found", "Tactile fidelity", "Preference alignment", "## Policy success"):
+        assert heading in text, heading
+    assert "## User study" in text and "(SYNTHETIC)" in text and "| code | git " in text
+    tracking.experiment(DataLayout.from_env(data), "report")
+    artefacts = {a.path for a in mlflow.MlflowClient().list_artifacts(result["mlflow_run"])}
+    assert artefacts == {"report.html", "report.md"}
+
+
+def _browser():
+    """Headless Debian Chromium under Playwright (CI installs the package; a machine without it skips)."""
+    if not Path(CHROMIUM).is_file():
+        if os.environ.get("CI"):
+            pytest.fail(f"CI must install Debian's chromium: {CHROMIUM} is missing")
+        pytest.skip("Debian's chromium is not installed")
+    from playwright.sync_api import sync_playwright
+
+    return sync_playwright()
+
+
+def test_a_headless_chromium_renders_every_table_and_figure_of_the_page(reported, tmp_path: Path) -> None:
+    _, result, _ = reported
+    with _browser() as playwright:
+        browser = playwright.chromium.launch(
+            executable_path=CHROMIUM,
+            args=["--no-sandbox", "--disable-gpu", "--disable-background-networking", "--disable-component-update"],
+        )
+        try:
+            page = browser.new_page(viewport={"width": 1200, "height": 900})
+            requests: list[str] = []
+            page.on("request", lambda r: requests.append(r.url))
+            page.goto(Path(result["html"]).as_uri())
+            page.wait_for_load_state("load")
+            tables = page.locator("table")
+            images = page.locator("img")
+            # provenance, 2 scored sources x (F1, onset error), policy success, user study
+            assert tables.count() == 1 + 4 + 2
+            assert images.count() == 4 + 1
+            for k in range(images.count()):
+                size = images.nth(k).evaluate("img => [img.complete, img.naturalWidth, img.naturalHeight]")
+                assert size[0] and size[1] > 100 and size[2] > 100, (k, size)
+            assert page.locator("ul.claims li").count() == 6 * 2 + 6
+            assert page.locator("b.holds").count() >= 1
+            assert [u for u in requests if not u.startswith(("file:", "data:"))] == []  # self-contained
+            page.screenshot(path=str(tmp_path / "report.png"), full_page=True)
+            assert (tmp_path / "report.png").stat().st_size > 10_000
+        finally:
+            browser.close()

@@ -1,0 +1,430 @@
+"""The run's report: what the comparison found, as Markdown and as one self-contained HTML page.
+
+Reads only what the catalog holds (``comparison``, ``policy_eval``, ``user_study``: the caller
+queries them), so anyone can reproduce every figure with ``touch2robot sql``. The paper's claims are
+stated from the intervals, never from the point estimates alone:
+
+- a contact claim (``versus`` scores higher F1 / a lower onset error than a method) **holds** when
+  the paired interval of the difference lies wholly on the claimed side, **does not hold** when it
+  lies wholly on the other, and is **not resolved** when it spans 0;
+- a policy claim compares Wilson intervals: it holds when ``versus``'s lies wholly above the
+  method's, does not hold when wholly below, and is not resolved when they overlap (no paired
+  episode outcomes are stored, so no paired test is made).
+
+No Prefect imports: the flow ``report`` wraps :func:`write_report`.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import html
+import importlib.metadata
+import io
+import subprocess
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from schemas.vocabulary import Source
+from touch2robot import lake as lake_io
+from touch2robot.metrics import ALL
+
+__all__ = ["Claim", "ReportData", "claims", "code_version", "render_html", "render_markdown", "write_report"]
+
+# The packages whose code makes the figures (the code digest of a copy that is not a git checkout).
+CODE_PACKAGES = ("touch2robot", "schemas", "tasks", "flows", "app")
+
+SCOPES: dict[str, str] = {
+    Source.REAL: "Tactile fidelity: a trajectory's contacts in simulation vs those measured on its replay",
+    Source.HUMAN: "Preference alignment: a method's robot contacts vs the human's (the glove)",
+}
+METRIC_LABELS = {
+    "f1": "F1",
+    "precision": "precision",
+    "recall": "recall",
+    "fpr": "false-positive rate",
+    "onset_error_ms": "onset error (ms)",
+}
+# the direction each headline metric's claim takes: higher F1 is better, a lower onset error is
+HIGHER_IS_BETTER = {"f1": True, "onset_error_ms": False}
+
+
+@dataclass(frozen=True)
+class ReportData:
+    """What a report shows: the catalog's tables and where they came from."""
+
+    comparison: pd.DataFrame
+    policy: pd.DataFrame
+    user_study: pd.DataFrame
+    provenance: dict[str, str]
+    figures: dict[str, bytes] = field(default_factory=dict)  # name -> PNG, filled by :func:`draw_figures`
+
+
+@dataclass(frozen=True)
+class Claim:
+    """One of the paper's claims against one method, and what the measurement says of it."""
+
+    statement: str
+    verdict: str  # holds | does not hold | not resolved | not measured
+    evidence: str
+
+
+def _fmt(value: object, spec: str = ".3f") -> str:
+    if value is None or (isinstance(value, float) and np.isnan(value)):
+        return "n/a"
+    return format(value, spec)
+
+
+def _interval(row: Mapping, spec: str = ".3f") -> str:
+    return f"{_fmt(row['estimate'], spec)} [{_fmt(row['ci_low'], spec)}, {_fmt(row['ci_high'], spec)}]"
+
+
+def _scope_name(reference: str, source: str) -> str:
+    if reference == Source.REAL:
+        return "tactile fidelity"
+    return f"preference alignment ({source} contacts)"
+
+
+def claims(comparison: pd.DataFrame, policy: pd.DataFrame, versus: str) -> list[Claim]:
+    """The paper's claims at this run's size: per scored source and method compared with ``versus``, its
+    F1 and onset error over all tasks; per task and method, its policy's success rate."""
+    found: list[Claim] = []
+    rows = comparison[(comparison["task"] == ALL) & comparison["metric"].isin(list(HIGHER_IS_BETTER))]
+    for row in rows[rows["versus"].notna()].to_dict("records"):
+        higher = HIGHER_IS_BETTER[row["metric"]]
+        scope = _scope_name(row["reference_source"], row["source"])
+        better = "higher" if higher else "lower"
+        statement = f"{versus} has a {better} {METRIC_LABELS[row['metric']]} than {row['method']} ({scope})"
+        low, high = row["difference_ci_low"], row["difference_ci_high"]
+        spec = "+.3f" if row["metric"] == "f1" else "+.0f"
+        evidence = (
+            f"{versus} - {row['method']}: {_fmt(row['difference'], spec)} [{_fmt(low, spec)}, {_fmt(high, spec)}], "
+            f"Holm p {_fmt(row['p_holm'], '.2g')}, {row['n_paired']} paired demonstrations"
+        )
+        if low is None or high is None or np.isnan(low) or np.isnan(high):
+            verdict = "not measured"
+        elif (low > 0) if higher else (high < 0):
+            verdict = "holds"
+        elif (high < 0) if higher else (low > 0):
+            verdict = "does not hold"
+        else:
+            verdict = "not resolved"
+        found.append(Claim(statement, verdict, evidence))
+    by_cell = {(r["task"], r["method"]): r for r in policy.to_dict("records")}
+    for (task, method), row in sorted(by_cell.items()):
+        if method == versus:
+            continue
+        statement = f"a policy trained on {versus}'s demonstrations succeeds more often than on {method}'s ({task})"
+        ours = by_cell.get((task, versus))
+        if ours is None:
+            found.append(Claim(statement, "not measured", f"no {versus} policy for {task}"))
+            continue
+        evidence = (
+            f"{versus} {ours['successes']}/{ours['episodes']} [{ours['ci_low']:.2f}, {ours['ci_high']:.2f}], "
+            f"{method} {row['successes']}/{row['episodes']} [{row['ci_low']:.2f}, {row['ci_high']:.2f}] (Wilson)"
+        )
+        if ours["ci_low"] > row["ci_high"]:
+            verdict = "holds"
+        elif ours["ci_high"] < row["ci_low"]:
+            verdict = "does not hold"
+        else:
+            verdict = "not resolved"
+        found.append(Claim(statement, verdict, evidence))
+    return found
+
+
+# --------------------------------------------------------------------------- tables
+
+
+@dataclass(frozen=True)
+class Section:
+    """A titled table (header row + rows of text) with an optional figure and note."""
+
+    title: str
+    header: list[str]
+    rows: list[list[str]]
+    figure: str | None = None
+    note: str = ""
+
+
+def _score_sections(comparison: pd.DataFrame) -> list[Section]:
+    sections = []
+    for (reference, source), group in comparison.groupby(["reference_source", "source"], sort=True):
+        scope = SCOPES.get(str(reference), f"scored against {reference}")
+        if reference != Source.REAL:
+            scope += f", {source} contacts"
+        tasks = sorted(set(group["task"]) - {ALL}) + [ALL]
+        for metric in ("f1", "onset_error_ms"):
+            rows = group[group["metric"] == metric]
+            if rows.empty:
+                continue
+            spec = ".3f" if metric == "f1" else ".0f"
+            cells = {(r["method"], r["task"]): r for r in rows.to_dict("records")}
+            body = []
+            for method in sorted(set(rows["method"])):
+                line = [method] + [_interval(cells[(method, t)], spec) if (method, t) in cells else "-" for t in tasks]
+                overall = cells.get((method, ALL))
+                if overall is not None and overall["versus"] is not None and overall["n_paired"]:
+                    d_spec = "+.3f" if metric == "f1" else "+.0f"
+                    line.append(
+                        f"{_fmt(overall['difference'], d_spec)} [{_fmt(overall['difference_ci_low'], d_spec)}, "
+                        f"{_fmt(overall['difference_ci_high'], d_spec)}], p_Holm {_fmt(overall['p_holm'], '.2g')}"
+                    )
+                else:
+                    line.append("")
+                body.append(line)
+            versus = next((v for v in rows["versus"] if v is not None), None)
+            header = ["method", *["all tasks" if t == ALL else t for t in tasks]]
+            header.append(f"{versus} - method (all tasks)" if versus else "paired difference")
+            n = int(rows[rows["task"] == ALL]["n_demonstrations"].max())
+            sections.append(
+                Section(
+                    f"{scope}: {METRIC_LABELS[metric]}",
+                    header,
+                    body,
+                    figure=_figure_name(str(reference), str(source), metric),
+                    note=f"estimate [95 % interval]; up to {n} demonstrations over all tasks",
+                )
+            )
+    return sections
+
+
+def _policy_section(policy: pd.DataFrame) -> Section | None:
+    if policy.empty:
+        return None
+    rows = [
+        [
+            r["task"],
+            r["method"],
+            f"{r['successes']}/{r['episodes']}",
+            f"{r['success_rate']:.2f} [{r['ci_low']:.2f}, {r['ci_high']:.2f}]",
+            str(r["train_steps"]),
+        ]
+        for r in policy.sort_values(["task", "method"]).to_dict("records")
+    ]
+    return Section(
+        "Policy success (closed loop)",
+        ["task", "method", "successes", "rate [95 % Wilson]", "updates"],
+        rows,
+        figure="policy_success",
+    )
+
+
+def _user_study_section(user_study: pd.DataFrame) -> Section | None:
+    if user_study.empty:
+        return None
+    rows = [
+        [
+            r["ratings_file"] + (" (SYNTHETIC)" if r["synthetic"] else ""),
+            r["question"],
+            f"{_fmt(r['median_visual_feedback'], '.1f')} / {_fmt(r['median_touch2robot'], '.1f')}",
+            _fmt(r["p"], ".3g"),
+            _fmt(r["p_holm"], ".3g"),
+        ]
+        for r in user_study.sort_values(["ratings_file", "question"]).to_dict("records")
+    ]
+    return Section("User study", ["ratings", "question", "median VF / T2R", "Wilcoxon p", "p_Holm"], rows)
+
+
+def _sections(data: ReportData) -> list[Section]:
+    found = _score_sections(data.comparison)
+    found += [s for s in (_policy_section(data.policy), _user_study_section(data.user_study)) if s is not None]
+    return found
+
+
+# --------------------------------------------------------------------------- figures
+
+
+def _figure_name(reference: str, source: str, metric: str) -> str:
+    return f"{'fidelity' if reference == Source.REAL else f'preference_{source}'}_{metric}"
+
+
+def _png(fig) -> bytes:
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=110)
+    return buffer.getvalue()
+
+
+_MISSING = (np.nan, np.nan, np.nan)
+
+
+def _bars(groups: list[str], series: Mapping[str, list[tuple]], ylabel: str, title: str) -> bytes:
+    """Grouped bars (one group per task, one bar per method) with interval whiskers."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(max(5.0, 1.4 * len(groups) + 2), 3.2), layout="constrained")
+    ax = fig.subplots()
+    width = 0.8 / max(1, len(series))
+    x = np.arange(len(groups))
+    for k, (name, values) in enumerate(series.items()):
+        est = np.array([v[0] for v in values], dtype=float)
+        low = np.array([v[1] for v in values], dtype=float)
+        high = np.array([v[2] for v in values], dtype=float)
+        whiskers = np.nan_to_num(np.vstack([est - low, high - est]), nan=0.0).clip(min=0)
+        ax.bar(x + (k - (len(series) - 1) / 2) * width, est, width, yerr=whiskers, capsize=3, label=name)
+    ax.set_xticks(x, groups)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title, fontsize=10)
+    ax.legend(fontsize=8, ncols=min(4, len(series)))
+    return _png(fig)
+
+
+def draw_figures(data: ReportData) -> dict[str, bytes]:
+    """Bars with interval whiskers: each scored source's F1 and onset error per task, and policy success."""
+    figures: dict[str, bytes] = {}
+    for (reference, source, metric), rows in data.comparison.groupby(["reference_source", "source", "metric"]):
+        if metric not in HIGHER_IS_BETTER:
+            continue
+        tasks = sorted(set(rows["task"]) - {ALL}) + [ALL]
+        cells = {(r["method"], r["task"]): r for r in rows.to_dict("records")}
+        series = {
+            method: [
+                (c["estimate"], c["ci_low"], c["ci_high"]) if (c := cells.get((method, t))) else _MISSING for t in tasks
+            ]
+            for method in sorted(set(rows["method"]))
+        }
+        labels = ["all" if t == ALL else t for t in tasks]
+        title = f"{_scope_name(str(reference), str(source))}: {METRIC_LABELS[str(metric)]} (95 % interval)"
+        figures[_figure_name(str(reference), str(source), str(metric))] = _bars(
+            labels, series, METRIC_LABELS[str(metric)], title
+        )
+    if not data.policy.empty:
+        tasks = sorted(set(data.policy["task"]))
+        cells = {(r["task"], r["method"]): r for r in data.policy.to_dict("records")}
+        series = {
+            method: [
+                (c["success_rate"], c["ci_low"], c["ci_high"]) if (c := cells.get((t, method))) else _MISSING
+                for t in tasks
+            ]
+            for method in sorted(set(data.policy["method"]))
+        }
+        figures["policy_success"] = _bars(tasks, series, "success rate", "policy success (95 % Wilson interval)")
+    return figures
+
+
+# --------------------------------------------------------------------------- rendering
+
+_STATISTICS = (
+    "Intervals: 95 % percentile intervals of a cluster bootstrap over demonstrations (the time-region samples of "
+    "one demonstration are not independent), scores pooled over a resample's demonstrations. Paired differences "
+    "resample the same demonstrations for both methods; the test is the two-sided Wilcoxon signed-rank test over "
+    "the per-demonstration scores, Holm-adjusted over the methods compared on one metric, source and task. Success "
+    "rates carry Wilson intervals. touch2robot.comparison.statistics documents each choice."
+)
+
+
+def render_markdown(data: ReportData, versus: str) -> str:
+    """The report as Markdown (the Prefect artefact and ``report.md``)."""
+    lines = [f"# touch2robot report: {data.provenance.get('profile', '')}", ""]
+    lines += ["| provenance | |", "|---|---|"] + [f"| {k} | {v} |" for k, v in data.provenance.items()]
+    lines += ["", "## What this run found", ""]
+    found = claims(data.comparison, data.policy, versus)
+    lines += [f"- **{c.verdict}**: {c.statement}. {c.evidence}" for c in found] or ["- nothing compared yet"]
+    for section in _sections(data):
+        lines += ["", f"## {section.title}", "", "| " + " | ".join(section.header) + " |"]
+        lines += ["|" + "---|" * len(section.header)]
+        lines += ["| " + " | ".join(row) + " |" for row in section.rows]
+        if section.note:
+            lines += ["", f"_{section.note}_"]
+    lines += ["", "## Statistics", "", _STATISTICS, ""]
+    return "\n".join(lines)
+
+
+_CSS = """
+body { font-family: system-ui, sans-serif; margin: 2em auto; max-width: 70em; color: #222; }
+table { border-collapse: collapse; margin: 0.5em 0 1em; font-size: 0.9em; }
+th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; text-align: left; }
+th { background: #f3f3f3; }
+.holds { color: #176b2c; } .does-not-hold { color: #a32020; } .not-resolved, .not-measured { color: #7a5b00; }
+img { max-width: 100%; }
+.note { color: #666; font-size: 0.85em; }
+"""
+
+
+def _html_table(header: Iterable[str], rows: Iterable[Iterable[str]]) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in rows)
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def render_html(data: ReportData, versus: str) -> str:
+    """The report as one HTML page with its figures embedded (no file or network it needs)."""
+    parts = [
+        "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>",
+        f"<title>touch2robot report: {html.escape(data.provenance.get('profile', ''))}</title>",
+        f"<style>{_CSS}</style></head><body>",
+        f"<h1>touch2robot report: {html.escape(data.provenance.get('profile', ''))}</h1>",
+        _html_table(["provenance", ""], data.provenance.items()),
+        "<h2>What this run found</h2><ul class='claims'>",
+    ]
+    found = claims(data.comparison, data.policy, versus)
+    for c in found:
+        css = c.verdict.replace(" ", "-")
+        parts.append(
+            f"<li><b class='{css}'>{html.escape(c.verdict)}</b>: {html.escape(c.statement)}. "
+            f"<span class='note'>{html.escape(c.evidence)}</span></li>"
+        )
+    if not found:
+        parts.append("<li>nothing compared yet</li>")
+    parts.append("</ul>")
+    for section in _sections(data):
+        parts.append(f"<section><h2>{html.escape(section.title)}</h2>")
+        parts.append(_html_table(section.header, section.rows))
+        if section.note:
+            parts.append(f"<p class='note'>{html.escape(section.note)}</p>")
+        if section.figure and section.figure in data.figures:
+            encoded = base64.b64encode(data.figures[section.figure]).decode()
+            parts.append(f"<img alt='{html.escape(section.title)}' src='data:image/png;base64,{encoded}'>")
+        parts.append("</section>")
+    parts.append(f"<h2>Statistics</h2><p>{html.escape(_STATISTICS)}</p></body></html>")
+    return "\n".join(parts)
+
+
+# --------------------------------------------------------------------------- provenance and writing
+
+
+def code_version() -> str:
+    """The git commit of the checkout the code runs from (with '+changes' when it has uncommitted ones),
+    else the package version and a digest of the code's Python files."""
+    root = Path(__file__).resolve().parents[1]
+    try:
+        commit = subprocess.run(
+            ["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10, check=True
+        ).stdout.strip()
+        changed = subprocess.run(
+            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+            capture_output=True,
+            text=True,
+            timeout=10,
+            check=True,
+        ).stdout.strip()
+        return f"git {commit}" + (" +changes" if changed else "")
+    except (OSError, subprocess.SubprocessError):
+        pass
+    digest = hashlib.sha256()
+    for package in CODE_PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            digest.update(path.relative_to(root).as_posix().encode() + path.read_bytes())
+    return f"touch2robot {importlib.metadata.version('touch2robot')}, code {digest.hexdigest()[:16]}"
+
+
+def table_digest(*frames: pd.DataFrame) -> str:
+    """A digest of the tables a report shows (their rows, in a fixed order)."""
+    digest = hashlib.sha256()
+    for frame in frames:
+        ordered = frame.sort_values(list(frame.columns)).reset_index(drop=True) if len(frame) else frame
+        digest.update(pd.util.hash_pandas_object(ordered.astype(str), index=False).to_numpy().tobytes())
+    return digest.hexdigest()[:16]
+
+
+def write_report(folder: Path, data: ReportData, versus: str) -> tuple[Path, Path]:
+    """``report.md`` and ``report.html`` in ``folder``, each written whole (temp + rename)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    markdown, page = folder / "report.md", folder / "report.html"
+    lake_io.replace_text(render_markdown(data, versus), markdown)
+    lake_io.replace_text(render_html(data, versus), page)
+    return markdown, page
