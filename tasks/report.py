@@ -15,6 +15,7 @@ from tasks.common import ALWAYS_RUN
 from touch2robot import catalog
 from touch2robot import report as rp
 from touch2robot.config import load_profile
+from touch2robot.provenance import code_version
 from touch2robot.settings import DataLayout
 
 
@@ -40,7 +41,7 @@ def build_report(data: str, profile: str) -> dict:
             f"{config.replay.seed}, policy {config.policy.seed}, bootstrap {config.comparison.seed}"
         ),
         "compared with": versus,
-        "code": rp.code_version(),
+        "code": code_version(),
         "data": f"{layout.root} (tables digest {rp.table_digest(*tables.values())})",
     }
     report = rp.ReportData(tables["comparison"], tables["policy_eval"], tables["user_study"], provenance)

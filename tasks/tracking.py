@@ -17,6 +17,7 @@ import mlflow
 from mlflow.entities import Metric
 from mlflow.exceptions import MlflowException
 
+from touch2robot.provenance import code_version, git_commit
 from touch2robot.settings import DataLayout
 
 
@@ -98,14 +99,30 @@ def _store_lock(layout: DataLayout) -> Iterator[None]:
         yield
 
 
+# What each stage's experiment holds (the MLflow UI shows it as the experiment's description).
+EXPERIMENT_DESCRIPTIONS = {
+    "ingest": "One run per ingest: recordings ingested, unchanged and quarantined, with the reasons.",
+    "retarget": "Kinematic retargeting per glove recording: fingertip residuals and failed frames.",
+    "teachers": "PPO teachers per method x task: reward and contact curves; the kinematic replays' figures.",
+    "student": "The distilled student per variant (full model and ablations): losses and held-out reconstructions.",
+    "evaluate": "Preference alignment and tactile fidelity per source x method x task (task 'all' pools the tasks); "
+    "the user study; summary runs with the figures.",
+    "policy": "LeRobot Diffusion Policy per method x task: training curves, closed-loop success, episode videos.",
+    "report": "The run's report (report.html, report.md): the comparison with intervals and the paper's claims.",
+}
+# MLflow's own tag for a run's commit: the UI shows it on every run
+GIT_COMMIT_TAG = "mlflow.source.git.commit"
+
+
 def _get_or_create(layout: DataLayout, name: str, stage: str, uri: str) -> str:
     found = mlflow.get_experiment_by_name(name)
     if found is not None:
         return found.experiment_id
     # a remote server keeps its own artefact store; the local default keeps them in the data folder
     location = (layout.mlartifacts / stage).as_uri() if uri == local_uri(layout) else None
+    tags = {"mlflow.note.content": EXPERIMENT_DESCRIPTIONS[stage]} if stage in EXPERIMENT_DESCRIPTIONS else None
     try:
-        return mlflow.create_experiment(name, artifact_location=location)
+        return mlflow.create_experiment(name, artifact_location=location, tags=tags)
     except MlflowException:
         # another process created it between our lookup and create; if none did, the error stands
         created = mlflow.get_experiment_by_name(name)
@@ -125,8 +142,16 @@ def stage_run(
         with mlflow.start_run(run_id=run_id) as run:
             yield run
         return
-    with mlflow.start_run(experiment_id=exp, run_name=run_name, tags={"stage": stage, **(tags or {})}) as run:
+    with mlflow.start_run(experiment_id=exp, run_name=run_name, tags={**provenance_tags(stage), **(tags or {})}) as run:
         yield run
+
+
+def provenance_tags(stage: str) -> dict[str, str]:
+    """Tags of every run: its stage and the code that made it (the git commit where there is one)."""
+    tags = {"stage": stage, "code": code_version()}
+    if (commit := git_commit()) is not None:
+        tags[GIT_COMMIT_TAG] = commit.removesuffix(" +changes")
+    return tags
 
 
 def resumable_run(

@@ -19,6 +19,7 @@ from touch2robot import lake as lake_io
 from touch2robot.comparison.statistics import comparison_table, wilson_interval
 from touch2robot.evaluate import user_study_table
 from touch2robot.metrics import ALL
+from touch2robot.provenance import code_version
 from touch2robot.report import claims
 from touch2robot.synth.ratings import synthetic_ratings
 
@@ -155,9 +156,14 @@ def test_the_report_is_published_as_files_an_artefact_and_an_mlflow_run(reported
     for heading in ("## What this run found", "Tactile fidelity", "Preference alignment", "## Policy success"):
         assert heading in text, heading
     assert "## User study" in text and "(SYNTHETIC)" in text and "| code | git " in text
-    tracking.experiment(DataLayout.from_env(data), "report")
-    artefacts = {a.path for a in mlflow.MlflowClient().list_artifacts(result["mlflow_run"])}
-    assert artefacts == {"report.html", "report.md"}
+    experiment = tracking.experiment(DataLayout.from_env(data), "report")
+    client = mlflow.MlflowClient()
+    assert {a.path for a in client.list_artifacts(result["mlflow_run"])} == {"report.html", "report.md"}
+    # every run names the code that made it, and each stage's experiment says what it holds
+    tags = client.get_run(result["mlflow_run"]).data.tags
+    assert tags["stage"] == "report" and tags["code"] == code_version() and tags["code"].startswith("git ")
+    assert tags["code"].split()[1] == tags["mlflow.source.git.commit"]
+    assert client.get_experiment(experiment).tags["mlflow.note.content"].startswith("The run's report")
 
 
 def _browser():

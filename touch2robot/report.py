@@ -19,9 +19,7 @@ from __future__ import annotations
 import base64
 import hashlib
 import html
-import importlib.metadata
 import io
-import subprocess
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,10 +31,7 @@ from schemas.vocabulary import Source
 from touch2robot import lake as lake_io
 from touch2robot.metrics import ALL
 
-__all__ = ["Claim", "ReportData", "claims", "code_version", "render_html", "render_markdown", "write_report"]
-
-# The packages whose code makes the figures (the code digest of a copy that is not a git checkout).
-CODE_PACKAGES = ("touch2robot", "schemas", "tasks", "flows", "app")
+__all__ = ["Claim", "ReportData", "claims", "render_html", "render_markdown", "write_report"]
 
 SCOPES: dict[str, str] = {
     Source.REAL: "Tactile fidelity: a trajectory's contacts in simulation vs those measured on its replay",
@@ -385,31 +380,6 @@ def render_html(data: ReportData, versus: str) -> str:
 
 
 # --------------------------------------------------------------------------- provenance and writing
-
-
-def code_version() -> str:
-    """The git commit of the checkout the code runs from (with '+changes' when it has uncommitted ones),
-    else the package version and a digest of the code's Python files."""
-    root = Path(__file__).resolve().parents[1]
-    try:
-        commit = subprocess.run(
-            ["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True, text=True, timeout=10, check=True
-        ).stdout.strip()
-        changed = subprocess.run(
-            ["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-            capture_output=True,
-            text=True,
-            timeout=10,
-            check=True,
-        ).stdout.strip()
-        return f"git {commit}" + (" +changes" if changed else "")
-    except (OSError, subprocess.SubprocessError):
-        pass
-    digest = hashlib.sha256()
-    for package in CODE_PACKAGES:
-        for path in sorted((root / package).rglob("*.py")):
-            digest.update(path.relative_to(root).as_posix().encode() + path.read_bytes())
-    return f"touch2robot {importlib.metadata.version('touch2robot')}, code {digest.hexdigest()[:16]}"
 
 
 def table_digest(*frames: pd.DataFrame) -> str:
