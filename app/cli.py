@@ -435,6 +435,8 @@ def _closing(layout: DataLayout, title: str, results: dict) -> None:
     for stage, figures in headline(results):
         table.add_row(stage, figures)
     console.print(table)
+    if reported := results.get("report"):
+        console.print(f"report: {reported['html']}", highlight=False, soft_wrap=True)
     console.print(
         f"next:  touch2robot ui --start --data {layout.root}    the MLflow and Prefect UIs of these runs\n"
         f'       touch2robot sql "SELECT * FROM policy_eval" --data {layout.root}    the tables\n'

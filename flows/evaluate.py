@@ -92,7 +92,10 @@ def evaluate(
         for r in metrics
         if r["task"] == ALL and r["region"] == ALL
     }
-    print(f"evaluate: sources {sources}, overall F1 {overall}, {len(studies)} ratings file(s) -> {layout.catalog}")
+    print(
+        f"evaluate: sources {sources}, {len(comparison)} comparison rows, {len(studies)} ratings file(s) -> "
+        f"{layout.catalog}"
+    )
     skipped = {Path(s["path"]).name: s["error"] for s in studies if s["error"]}
     return {
         "sources": sources,

@@ -148,7 +148,8 @@ class Section:
 
 def _score_sections(comparison: pd.DataFrame) -> list[Section]:
     sections = []
-    for (reference, source), group in comparison.groupby(["reference_source", "source"], sort=True):
+    cells = sorted(comparison.groupby(["reference_source", "source"]), key=lambda c: (c[0][0] != Source.REAL, c[0]))
+    for (reference, source), group in cells:
         scope = SCOPES.get(str(reference), f"scored against {reference}")
         if reference != Source.REAL:
             scope += f", {source} contacts"
