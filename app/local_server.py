@@ -74,16 +74,18 @@ def spawn_owned(
     env: Mapping[str, str] | None = None,
     *,
     stdout: int | IO[Any] | None = None,
+    stderr: int | IO[Any] | None = None,
     text: bool | None = None,
 ) -> subprocess.Popen:
-    """Start ``cmd`` in its own process group, killed by the kernel if this process dies; ``stdout``
-    and ``text`` as for ``subprocess.Popen``."""
+    """Start ``cmd`` in its own process group, killed by the kernel if this process dies; ``stdout``,
+    ``stderr`` and ``text`` as for ``subprocess.Popen``."""
     return subprocess.Popen(
         list(cmd),
         env=dict(env) if env is not None else None,
         start_new_session=True,
         preexec_fn=_die_with(os.getpid()),
         stdout=stdout,
+        stderr=stderr,
         text=text,
     )
 
@@ -128,6 +130,7 @@ class PrefectApi:
     process: subprocess.Popen | None = None
     port: int = 0
     started_at: float = 0.0  # time.monotonic() at the spawn
+    output: str | None = None  # the file its output goes to (None: this command's terminal)
 
     @property
     def url(self) -> str:
@@ -155,7 +158,16 @@ class PrefectApi:
         # short-lived server needs, one app per process
         env = {**self.env, "PREFECT_UI_ENABLED": "0", "PREFECT__SERVER_EPHEMERAL": "1", "PREFECT__SERVER_FINAL": "1"}
         self.started_at = time.monotonic()
-        self.process = spawn_owned(cmd, env)
+        from tasks.logs import LOG_FILE_ENV, VERBOSE_ENV
+
+        log_file = env.get(LOG_FILE_ENV)
+        if log_file and env.get(VERBOSE_ENV) != "1":
+            # its shutdown's cancelled database calls are the server's business: the run's log, not the terminal
+            self.output = log_file
+            with open(log_file, "a") as log:
+                self.process = spawn_owned(cmd, env, stdout=log, stderr=subprocess.STDOUT)
+        else:
+            self.process = spawn_owned(cmd, env)
         return self
 
     def wait_ready(self, timeout_s: float) -> str:
@@ -168,7 +180,8 @@ class PrefectApi:
             if status == _UVICORN_STARTUP_FAILURE:
                 self.start()
             elif status is not None:
-                raise ServerFailed(f"the Prefect API server exited with status {status} (its output is above)")
+                where = f"in {self.output}" if self.output else "above"
+                raise ServerFailed(f"the Prefect API server exited with status {status} (its output is {where})")
             elif answers(f"{self.url}/health"):
                 # the figure bench/rerun.py reads: what a cached re-run spends before any flow can start
                 logger.info("Prefect API answered %.1f s after its start", time.monotonic() - self.started_at)

@@ -117,7 +117,7 @@ def test_the_report_states_each_claim_from_its_interval(reported) -> None:
         scope = (
             "tactile fidelity"
             if row["reference_source"] == "real"
-            else f"preference alignment ({row['source']} contacts)"
+            else f"preference alignment, {row['source']} contacts"
         )
         claim = found[f"touch2robot has a higher F1 than {row['method']} ({scope})"]
         low, high = row["difference_ci_low"], row["difference_ci_high"]

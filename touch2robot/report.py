@@ -81,7 +81,7 @@ def _interval(row: Mapping, spec: str = ".3f") -> str:
 def _scope_name(reference: str, source: str) -> str:
     if reference == Source.REAL:
         return "tactile fidelity"
-    return f"preference alignment ({source} contacts)"
+    return f"preference alignment, {source} contacts"
 
 
 def claims(comparison: pd.DataFrame, policy: pd.DataFrame, versus: str) -> list[Claim]:
@@ -89,7 +89,9 @@ def claims(comparison: pd.DataFrame, policy: pd.DataFrame, versus: str) -> list[
     F1 and onset error over all tasks; per task and method, its policy's success rate."""
     found: list[Claim] = []
     rows = comparison[(comparison["task"] == ALL) & comparison["metric"].isin(list(HIGHER_IS_BETTER))]
-    for row in rows[rows["versus"].notna()].to_dict("records"):
+    rows = rows[rows["versus"].notna()]
+    ordered = sorted(rows.to_dict("records"), key=lambda r: (r["reference_source"] != Source.REAL, r["source"]))
+    for row in ordered:  # tactile fidelity first, as in the paper
         higher = HIGHER_IS_BETTER[row["metric"]]
         scope = _scope_name(row["reference_source"], row["source"])
         better = "higher" if higher else "lower"
