@@ -161,16 +161,19 @@ def _summary(metrics: pd.DataFrame, onsets: pd.DataFrame) -> pd.DataFrame:
 
 
 def _timelines(lake: Path, reference: str, source: str, method: str, task_name: str, out: Path) -> list[Path]:
-    """Timeline figures of the first few sequences of (source, method, task) vs their references."""
+    """Timeline figures of (source, method, task) on its first few demonstrations (the first sequence of
+    each) vs the reference, one file per demonstration, named by it: ``<out>/<demonstration>.png``."""
     contacts = ev.read_contacts(lake, [reference, source], task=task_name)
     mine = contacts[(contacts["source"] == source) & (contacts["method"] == method)]
     ref = contacts[contacts["source"] == reference]
+    firsts = mine.sort_values("sequence_id").drop_duplicates("reference_id")
     paths = []
-    for seq in sorted(mine["sequence_id"].unique())[:TIMELINES_PER_RUN]:
+    for seq, ref_id in sorted(zip(firsts["sequence_id"], firsts["reference_id"], strict=True), key=lambda p: p[1])[
+        :TIMELINES_PER_RUN
+    ]:
         rows = mine[mine["sequence_id"] == seq]
-        ref_id = rows["reference_id"].iloc[0]
         title = f"{task_name}: {source}/{method} {seq} (lower) vs {reference} {ref_id} (upper)"
-        png = out / f"timeline_{ev.file_id(source, method, task_name, seq)}.png"
+        png = out / f"{ev.file_id(ref_id)}.png"
         paths.append(ev.plot_timeline(ref[ref["sequence_id"] == ref_id], rows, title, png))
     return paths
 
@@ -208,12 +211,20 @@ def log_evaluation(
         out = Path(tmp)
         for row in summary.to_dict(orient="records"):
             source, method, task_name, against = row["source"], row["method"], row["task"], row["reference_source"]
-            name = f"{source}/{method}/{'all' if task_name == ALL else task_name}"
+            task_label = "all" if task_name == ALL else task_name  # MLflow's UI filters and sorts on plain words
+            name = f"{source}/{method}/{task_label}"
             if against != reference:  # tactile fidelity: scored against the replay's measured contacts
                 name = f"fidelity/{name}"
-            tags = {"kind": "method", "profile": profile, "reference_source": against}
+            tags = {
+                "kind": "method",
+                "profile": profile,
+                "reference_source": against,
+                "source": source,
+                "method": method,
+                "task": task_label,
+            }
             with tracking.stage_run(layout, "evaluate", name, tags) as run:
-                mlflow.log_params({"source": source, "task": task_name, "method": method})
+                mlflow.log_params({"source": source, "task": task_label, "method": method})
                 values = {k: float(row[k]) for k in RUN_METRICS}
                 regional = metrics[
                     (metrics["reference_source"] == against)
@@ -223,12 +234,13 @@ def log_evaluation(
                     & (metrics["region"] != ALL)
                 ]
                 values |= {
-                    f"f1_{region}": float(f1) for region, f1 in zip(regional["region"], regional["f1"], strict=True)
+                    f"f1/{region}": float(f1) for region, f1 in zip(regional["region"], regional["f1"], strict=True)
                 }
                 mlflow.log_metrics(values)
                 if task_name != ALL and against == reference:
-                    for png in _timelines(layout.lake, reference, source, method, task_name, out):
-                        mlflow.log_artifact(str(png), "contact_timelines")
+                    # named by demonstration, not method: MLflow's compare view lines the methods' figures up
+                    for png in _timelines(layout.lake, reference, source, method, task_name, out / name):
+                        mlflow.log_artifact(str(png), f"contact_timelines/{task_name}")
                 runs[name] = run.info.run_id
         with tracking.stage_run(
             layout, "evaluate", f"summary-{profile}", {"kind": "summary", "profile": profile}
@@ -278,7 +290,7 @@ def log_user_study(data: str, profile: str, path: str, ratings_sha256: str, rows
         for r in table.itertuples(index=False):
             mlflow.log_metrics(
                 {
-                    f"{key}_{r.question}": float(getattr(r, key))
+                    f"{key}/{r.question}": float(getattr(r, key))
                     for key in (
                         "p",
                         "p_holm",
