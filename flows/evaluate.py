@@ -11,6 +11,7 @@ from tasks import tracking
 from tasks.common import stored
 from tasks.evaluate import (
     compare_methods,
+    evaluate_ablations,
     evaluate_fidelity,
     evaluate_ratings,
     evaluate_source,
@@ -22,7 +23,7 @@ from tasks.evaluate import (
 from tasks.ingest import refresh_catalog
 from tasks.runners import ProfileTaskRunner
 from touch2robot.config import load_profile
-from touch2robot.datasets import CONTACTS, RECORDINGS, ROLLOUTS, file_digest, folder_digest
+from touch2robot.datasets import CONTACTS, RECORDINGS, ROLLOUTS, STUDENT_VARIANTS, file_digest, folder_digest
 from touch2robot.evaluate import (
     FIDELITY_REFERENCE,
     REFERENCE_SOURCE,
@@ -65,7 +66,8 @@ def evaluate(
 
     metrics = [r for s in per_source for r in s["contact_metrics"]]
     onsets = [r for s in per_source for r in s["onset_errors"]]
-    clusters = [r for s in per_source for r in s["clusters"]]
+    ablations = stored(evaluate_ablations, layout.results)(lake, folder_digest([STUDENT_VARIANTS.folder(layout.lake)]))
+    clusters = [r for s in per_source for r in s["clusters"]] + ablations
     comparison = stored(compare_methods, layout.results)(clusters, config.comparison)
     store_table(lake, "contact_metrics", metrics)
     store_table(lake, "onset_errors", onsets)

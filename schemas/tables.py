@@ -358,6 +358,7 @@ comparison = pa.schema(
         pa.field("metric", pa.string(), nullable=False),
         pa.field("task", pa.string(), nullable=False),
         pa.field("method", pa.string(), nullable=False),
+        pa.field("variant", pa.string(), nullable=False),
         pa.field("estimate", pa.float64()),
         pa.field("ci_low", pa.float64()),
         pa.field("ci_high", pa.float64()),
@@ -382,11 +383,12 @@ comparison_doc = TableDoc(
         "metric": "precision | recall | f1 | fpr | onset_error_ms",
         "task": "the task, or '*' for all (demonstrations of every task pooled)",
         "method": "the retargeting method",
+        "variant": "a student ablation of the method ('' = the method itself, compared with the others)",
         "estimate": "the score over all its demonstrations (counts pooled); NULL when undefined",
         "ci_low": "lower bound of the percentile interval of a cluster bootstrap over demonstrations",
         "ci_high": "upper bound of that interval",
         "n_demonstrations": "demonstrations scored",
-        "versus": "the method it is compared with; NULL on that method's own rows",
+        "versus": "the method it is compared with (an ablation: the full model); NULL on that method's own rows",
         "difference": "score(versus) - score(method) on the demonstrations both were scored on",
         "difference_ci_low": "lower bound of the paired cluster-bootstrap interval of the difference",
         "difference_ci_high": "upper bound of that interval",
@@ -676,6 +678,39 @@ student_predictions_doc = TableDoc(
     },
 )
 
+# Every student variant's scores per held-out demonstration (flow `student`; one file per method x variant):
+# the comparison's clusters for the ablations, which are not in `contacts` (the full model's are).
+# Files: lake/student_variants/<method>__<variant>.parquet
+student_variants = pa.schema(
+    [
+        pa.field("method", pa.string(), nullable=False),
+        pa.field("variant", pa.string(), nullable=False),
+        pa.field("task", pa.string(), nullable=False),
+        pa.field("demonstration", pa.string(), nullable=False),
+        pa.field("tp", pa.int64(), nullable=False),
+        pa.field("fp", pa.int64(), nullable=False),
+        pa.field("fn", pa.int64(), nullable=False),
+        pa.field("tn", pa.int64(), nullable=False),
+        pa.field("onset_error_sum_ms", pa.float64(), nullable=False),
+        pa.field("onset_pairs", pa.int64(), nullable=False),
+    ]
+)
+student_variants_doc = TableDoc(
+    "each student variant's reconstructed contacts vs the human's, summed per held-out demonstration",
+    {
+        "method": "the teacher method the student was distilled from",
+        "variant": 'student variant ("full" or an ablation)',
+        "task": "pick | rotate | wipe | drawer",
+        "demonstration": "the held-out glove recording",
+        "tp": "time-region samples in contact in both",
+        "fp": "in contact in the reconstruction only",
+        "fn": "in contact in the human's only",
+        "tn": "in contact in neither",
+        "onset_error_sum_ms": "sum of |onset error| (ms) over the demonstration's regions with an onset on both sides",
+        "onset_pairs": "those regions",
+    },
+)
+
 # --- Replays on the robot (flow `replay`; rewritten whole, one file per task x method) ---------
 # Every trajectory the replay stage was asked to execute on the hardware twin (or a lab's rig), with
 # what it wrote, or why nothing was: a method with no trajectory for a task is a row, not a crash.
@@ -741,6 +776,7 @@ SCHEMAS: dict[str, pa.Schema] = {
     "policy_eval": policy_eval,
     "student_dataset": student_dataset,
     "student_predictions": student_predictions,
+    "student_variants": student_variants,
     "replays": replays,
 }
 
@@ -767,6 +803,7 @@ DOCS: dict[str, TableDoc] = {
     "policy_eval": policy_eval_doc,
     "student_dataset": student_dataset_doc,
     "student_predictions": student_predictions_doc,
+    "student_variants": student_variants_doc,
     "replays": replays_doc,
 }
 

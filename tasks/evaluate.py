@@ -102,13 +102,20 @@ def evaluate_fidelity(lake: str, contact_threshold_n: float, lake_digest: str) -
     return {"contact_metrics": metrics, "onset_errors": onsets, "clusters": clusters}
 
 
+@task(cache_policy=cache_policy(*_LIBRARY), persist_result=True)
+def evaluate_ablations(lake: str, lake_digest: str) -> list[dict]:
+    """The student ablations' clusters (table ``student_variants``); ``lake_digest`` covers that table."""
+    return _plain(ev.ablation_sums(Path(lake)))
+
+
 @task(cache_policy=cache_policy(*_LIBRARY, "touch2robot.comparison.statistics"), persist_result=True)
 def compare_methods(clusters: list[dict], config: ComparisonConfig) -> list[dict]:
-    """The ``comparison`` rows: every method's scores with cluster-bootstrap intervals over demonstrations,
-    and each method's paired difference and Wilcoxon test against ``config.versus``, Holm-adjusted."""
+    """The ``comparison`` rows: every method's (and student ablation's) scores with cluster-bootstrap intervals
+    over demonstrations, and each one's paired difference and Wilcoxon test against ``config.versus`` (an
+    ablation: against its full model), Holm-adjusted."""
     from touch2robot.comparison.statistics import comparison_table
 
-    frame = pd.DataFrame.from_records(clusters, columns=ev.CLUSTER_TABLE_COLUMNS)
+    frame = pd.DataFrame.from_records(clusters, columns=[*ev.CLUSTER_TABLE_COLUMNS, "variant"])
     table = comparison_table(frame, str(config.versus), config.confidence, config.n_resamples, config.seed)
     return _records(table, "comparison")
 

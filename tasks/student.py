@@ -10,6 +10,8 @@ import hashlib
 import json
 from pathlib import Path
 
+import pandas as pd
+import pyarrow as pa
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
@@ -239,7 +241,7 @@ def _student_loss(metrics: dict[str, float]) -> str:
 
 
 @task(
-    cache_policy=cache_policy(*STUDENT_MODULES),
+    cache_policy=cache_policy(*STUDENT_MODULES, "touch2robot.evaluate", "touch2robot.comparison"),
     persist_result=True,
     task_run_name="student-reconstruct-{trained[variant]}",
 )
@@ -271,6 +273,7 @@ def reconstruct(
     net = load_net(Path(trained["folder"]), config.variant(variant))
     by_id = {r["recording_id"]: r for r in recordings}
     rows = []
+    sums = []  # per held-out demonstration, vs the human's contacts: the comparison's clusters of this variant
     tracking.experiment(layout, "student")
     for task_name, ids in sorted(split["held_out"].items()):
         if not ids:
@@ -305,7 +308,29 @@ def reconstruct(
         with mlflow.start_run(run_id=trained["mlflow_run"]):
             mlflow.log_metrics({f"heldout/{task_name}/{k}": v for k, v in result.figures.items() if v == v})
         rows.append({"variant": variant, "task": task_name, "demos": len(refs), **result.figures})
+        sums.append(_demonstration_sums(layout.lake, task_name, ids, result.contacts))
+    if sums:
+        table = pd.concat(sums, ignore_index=True).assign(method=method, variant=variant)
+        rows_arrow = pa.Table.from_pandas(table, schema=datasets.STUDENT_VARIANTS.schema, preserve_index=False)
+        datasets.STUDENT_VARIANTS.write(layout.lake, (method, variant), rows_arrow)
     return rows
+
+
+def _demonstration_sums(lake: Path, task_name: str, held_out: list[str], reconstructed: pa.Table) -> pd.DataFrame:
+    """A variant's reconstructed contacts vs the human's, summed per held-out demonstration, scored as the
+    evaluation scores the full model's (touch2robot.evaluate.demonstration_sums)."""
+    from schemas.tables import SCHEMAS
+    from touch2robot import evaluate as ev
+
+    human = ev.read_contacts(lake, [Source.HUMAN], task=task_name)
+    scored = pd.concat(
+        [human[human["reference_id"].isin(held_out)], reconstructed.to_pandas()[list(ev.CONTACT_COLUMNS)]],
+        ignore_index=True,
+    )
+    no_time_map = SCHEMAS["time_map"].empty_table().to_pandas()  # a reconstruction carries t_ref already
+    onsets = ev.onset_errors_table(scored, no_time_map, Source.RECONSTRUCTED)
+    sums = ev.demonstration_sums(scored, onsets, Source.RECONSTRUCTED)
+    return sums.drop(columns=["reference_source", "source", "method"])
 
 
 @task(**ALWAYS_RUN)

@@ -205,3 +205,22 @@ def test_the_commands_closing_table_gives_each_methods_f1_with_its_interval_and_
         "",
         "",
     ]
+
+
+def test_a_student_ablation_is_compared_with_its_full_model_on_the_same_demonstrations() -> None:
+    from touch2robot.report import claims
+
+    clusters = _clusters()
+    reconstructed = clusters[clusters["method"] == "a"].assign(source="reconstructed", method="touch2robot")
+    ablation = reconstructed.assign(variant="no_tactile", tp=reconstructed["tp"] // 2)
+    table = comparison_table(pd.concat([clusters, reconstructed, ablation]), versus="a", n_resamples=500)
+    rows = table[(table["source"] == "reconstructed") & (table["metric"] == "f1") & (table["task"] == ALL)]
+    full, cut = (rows[rows["variant"] == v].iloc[0] for v in ("", "no_tactile"))
+    assert full["versus"] is None and cut["versus"] == "touch2robot" and cut["n_paired"] == 20
+    assert cut["difference"] == pytest.approx(full["estimate"] - cut["estimate"]) and cut["difference_ci_low"] > 0
+    # the methods' own rows are untouched by the ablation's presence
+    alone = comparison_table(clusters, versus="a", n_resamples=500)
+    pd.testing.assert_frame_equal(table[table["source"] == "sim"].reset_index(drop=True), alone)
+    stated = [c for c in claims(table, pd.DataFrame(columns=["task", "method"]), "a") if "ablation" in c.statement]
+    assert [c.verdict for c in stated if " F1 " in c.statement] == ["holds"]
+    assert stated[0].statement.startswith("touch2robot's full student has a higher F1 than its no_tactile ablation")

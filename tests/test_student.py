@@ -349,6 +349,17 @@ def test_student_flow_end_to_end(student_lake: Path, tmp_path: Path) -> None:
     assert "reconstructed" in evaluated_sources(layout.lake)
     metrics = contact_metrics_table(read_contacts(layout.lake, ["human", "reconstructed"]), "reconstructed")
     assert set(metrics["method"]) == {"touch2robot"} and metrics["n"].sum() > 0
+    # every variant's per-demonstration sums, the full model's equal to the evaluation's own counts
+    from touch2robot.evaluate import ablation_sums
+
+    variants = pa.concat_tables([pq.read_table(p) for p in lake_io.files(layout.lake, "student_variants")]).to_pandas()
+    assert set(variants["variant"]) == set(trained) and set(variants["method"]) == {"touch2robot"}
+    overall = metrics[(metrics["task"] == "*") & (metrics["region"] == "*")].iloc[0]
+    full_sums = variants[variants["variant"] == "full"]
+    assert [int(full_sums[c].sum()) for c in ("tp", "fp", "fn", "tn")] == [
+        int(overall[c]) for c in ("tp", "fp", "fn", "tn")
+    ]
+    assert set(ablation_sums(layout.lake)["variant"]) == {"no_tactile", "no_geometry", "no_dropout"}
 
     tracking.experiment(layout, "student")
     runs = mlflow.search_runs(experiment_names=["touch2robot/student"], output_format="list")

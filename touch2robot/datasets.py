@@ -283,6 +283,7 @@ LAKE: dict[str, LakeTable] = {
     "student_dataset": LakeTable("student_dataset", TASK_ID),
     "student_predictions": LakeTable("student_predictions", METHOD_TASK_ID),
     "policy_eval": LakeTable("policy_eval", METHOD_TASK_ID),
+    "student_variants": LakeTable("student_variants", KeyedIdFormat(("method", "variant"))),
     **{name: LakeTable(name, ids) for name, ids in EVALUATION_IDS.items()},
 }
 RECORDINGS = LAKE["recordings"]
@@ -292,6 +293,7 @@ ROLLOUTS = LAKE["rollouts"]
 STUDENT_DATASET = LAKE["student_dataset"]
 STUDENT_PREDICTIONS = LAKE["student_predictions"]
 POLICY_EVAL = LAKE["policy_eval"]
+STUDENT_VARIANTS = LAKE["student_variants"]
 
 # the lake files a demonstration reference is built from (see touch2robot.teachers.reference)
 REFERENCE_TABLES = ("retargeted", "object_pose", "hand_keypoints")

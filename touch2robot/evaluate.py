@@ -47,6 +47,7 @@ __all__ = [
     "FIDELITY_REFERENCE",
     "FIDELITY_SOURCE",
     "REFERENCE_SOURCE",
+    "ablation_sums",
     "contact_metrics_table",
     "demonstration_sums",
     "evaluated_sources",
@@ -371,6 +372,18 @@ def demonstration_sums(
     sums["demonstration"] = [mapping.get(r, r) for r in sums["reference_id"]]
     sums = sums.groupby(["method", "task", "demonstration"], as_index=False, sort=True)[list(CLUSTER_COLUMNS)].sum()
     return sums.assign(reference_source=reference, source=eval_source)[names]
+
+
+def ablation_sums(lake: Path) -> pd.DataFrame:
+    """The student ablations' demonstration sums (table ``student_variants``, the full model's left out: its
+    reconstructions are in ``contacts``) as comparison clusters of preference alignment, source reconstructed."""
+    names = [*CLUSTER_TABLE_COLUMNS, "variant"]
+    files = lake_io.files(lake, "student_variants")
+    if not files:
+        return pd.DataFrame({c: pd.Series(dtype=object) for c in names})
+    rows = pa.concat_tables([pq.read_table(f, schema=SCHEMAS["student_variants"]) for f in files]).to_pandas()
+    rows = rows[rows["variant"] != "full"]
+    return rows.assign(reference_source=REFERENCE_SOURCE, source=Source.RECONSTRUCTED)[names]
 
 
 FIDELITY_SOURCE = Source.SIM

@@ -78,6 +78,11 @@ def _interval(row: Mapping, spec: str = ".3f") -> str:
     return f"{_fmt(row['estimate'], spec)} [{_fmt(row['ci_low'], spec)}, {_fmt(row['ci_high'], spec)}]"
 
 
+def _label(row: Mapping) -> str:
+    """A comparison row's method, with its student ablation where it is one."""
+    return f"{row['method']} ({row['variant']})" if row.get("variant") else str(row["method"])
+
+
 def _scope_name(reference: str, source: str) -> str:
     if reference == Source.REAL:
         return "tactile fidelity"
@@ -95,11 +100,15 @@ def claims(comparison: pd.DataFrame, policy: pd.DataFrame, versus: str) -> list[
         higher = HIGHER_IS_BETTER[row["metric"]]
         scope = _scope_name(row["reference_source"], row["source"])
         better = "higher" if higher else "lower"
-        statement = f"{versus} has a {better} {METRIC_LABELS[row['metric']]} than {row['method']} ({scope})"
+        against, label = row["versus"], _label(row)
+        if row["variant"]:
+            against, label = f"{against}'s full student", f"its {row['variant']} ablation"
+        statement = f"{against} has a {better} {METRIC_LABELS[row['metric']]} than {label} ({scope})"
         low, high = row["difference_ci_low"], row["difference_ci_high"]
         spec = "+.3f" if row["metric"] == "f1" else "+.0f"
         evidence = (
-            f"{versus} - {row['method']}: {_fmt(row['difference'], spec)} [{_fmt(low, spec)}, {_fmt(high, spec)}], "
+            f"{row['versus']} - {_label(row)}: {_fmt(row['difference'], spec)} [{_fmt(low, spec)}, "
+            f"{_fmt(high, spec)}], "
             f"Holm p {_fmt(row['p_holm'], '.2g')}, {row['n_paired']} paired demonstrations"
         )
         if low is None or high is None or np.isnan(low) or np.isnan(high):
@@ -161,9 +170,9 @@ def _score_sections(comparison: pd.DataFrame) -> list[Section]:
             if rows.empty:
                 continue
             spec = ".3f" if metric == "f1" else ".0f"
-            cells = {(r["method"], r["task"]): r for r in rows.to_dict("records")}
+            cells = {(_label(r), r["task"]): r for r in rows.to_dict("records")}
             body = []
-            for method in sorted(set(rows["method"])):
+            for method in sorted({label for label, _ in cells}):
                 line = [method] + [_interval(cells[(method, t)], spec) if (method, t) in cells else "-" for t in tasks]
                 overall = cells.get((method, ALL))
                 if overall is not None and overall["versus"] is not None and overall["n_paired"]:
@@ -278,12 +287,12 @@ def draw_figures(data: ReportData) -> dict[str, bytes]:
         if metric not in HIGHER_IS_BETTER:
             continue
         tasks = sorted(set(rows["task"]) - {ALL}) + [ALL]
-        cells = {(r["method"], r["task"]): r for r in rows.to_dict("records")}
+        cells = {(_label(r), r["task"]): r for r in rows.to_dict("records")}
         series = {
             method: [
                 (c["estimate"], c["ci_low"], c["ci_high"]) if (c := cells.get((method, t))) else _MISSING for t in tasks
             ]
-            for method in sorted(set(rows["method"]))
+            for method in sorted({label for label, _ in cells})
         }
         labels = ["all" if t == ALL else t for t in tasks]
         title = f"{_scope_name(str(reference), str(source))}: {METRIC_LABELS[str(metric)]} (95 % interval)"

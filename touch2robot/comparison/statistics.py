@@ -24,7 +24,9 @@ interval and test here, and a score over several demonstrations pools their coun
   for n <= 50 distinct non-zero differences, exhaustive sign flips for n <= 13 with ties or
   zeros, the normal approximation otherwise; all three are deterministic. Fewer than one
   non-zero difference: p is NaN.
-- **Multiple comparisons**: the p-values of the methods compared with ``versus`` on one metric,
+- **Student ablations** (no tactile, no geometry, no dropout: a ``variant`` of a method) are compared
+  with their own full model the same way, on the held-out demonstrations both reconstructed.
+- **Multiple comparisons**: the p-values of the methods (or ablations) compared on one metric,
   source and task form one family, Holm-adjusted (:func:`touch2robot.stats.holm`).
 - **Success rates**: Wilson score intervals (:func:`wilson_interval`).
 
@@ -164,20 +166,25 @@ def _sums(frame: pd.DataFrame, coefficients: tuple[float, ...]) -> np.ndarray:
 def _cell_rows(
     clusters: pd.DataFrame, keys: dict, versus: str, confidence: float, n_resamples: int, seed: int
 ) -> list[dict]:
-    """Rows of one (reference_source, source, task) cell: every method's scores and, for each method
-    other than ``versus``, its paired comparison with ``versus``."""
-    by_method = {m: g.set_index("demonstration").sort_index() for m, g in clusters.groupby("method", sort=True)}
+    """Rows of one (reference_source, source, task) cell: every method's (and ablation's) scores and, for
+    each method other than ``versus``, its paired comparison with ``versus``; an ablation is compared with
+    its own method's full model."""
+    by_entry = {
+        (str(m), str(v)): g.set_index("demonstration").sort_index()
+        for (m, v), g in clusters.groupby(["method", "variant"], sort=True)
+    }
     rows = []
     cell = (str(keys["reference_source"]), str(keys["source"]), str(keys["task"]))
-    for method, own in by_method.items():
-        method = str(method)
-        weights = cluster_weights(len(own), n_resamples, _rng(seed, *cell, method))
+    for (method, variant), own in by_entry.items():
+        weights = cluster_weights(len(own), n_resamples, _rng(seed, *cell, method, *([variant] if variant else [])))
+        against = (method, "") if variant else (versus, "")
         paired = None
-        if method != versus and versus in by_method:
-            common = own.index.intersection(by_method[versus].index)
+        if (method, variant) != against and against in by_entry:
+            common = own.index.intersection(by_entry[against].index)
             if len(common):
-                mine, theirs = own.loc[common], by_method[versus].loc[common]
-                paired = (mine, theirs, cluster_weights(len(common), n_resamples, _rng(seed, *cell, method, versus)))
+                mine, theirs = own.loc[common], by_entry[against].loc[common]
+                stream = _rng(seed, *cell, method, *([variant] if variant else []), against[0])
+                paired = (mine, theirs, cluster_weights(len(common), n_resamples, stream))
         for metric, (num_c, den_c) in METRICS.items():
             num, den = _sums(own, num_c), _sums(own, den_c)
             score = ratio_interval(num, den, weights, confidence)
@@ -185,6 +192,7 @@ def _cell_rows(
                 **keys,
                 "metric": metric,
                 "method": method,
+                "variant": variant,
                 "estimate": score.estimate,
                 "ci_low": score.low,
                 "ci_high": score.high,
@@ -206,7 +214,7 @@ def _cell_rows(
                 diff = difference_interval(a, b, pair_weights, confidence)
                 test = paired_wilcoxon(_ratio(*a), _ratio(*b))
                 row |= {
-                    "versus": versus,
+                    "versus": against[0],
                     "difference": diff.estimate,
                     "difference_ci_low": diff.low,
                     "difference_ci_high": diff.high,
@@ -229,7 +237,8 @@ def comparison_table(
 
     Args:
         clusters: one row per (reference_source, source, method, task, demonstration) with the sums
-            of :data:`CLUSTER_COLUMNS` over that demonstration's samples (regions pooled).
+            of :data:`CLUSTER_COLUMNS` over that demonstration's samples (regions pooled); an optional
+            ``variant`` column names a student ablation of the method ('' = the method itself).
         versus: the method every other method is compared with (paired, per cell).
         confidence: the intervals' coverage.
         n_resamples: bootstrap resamples per interval.
@@ -246,17 +255,20 @@ def comparison_table(
     missing = [c for c in needed if c not in clusters.columns]
     if missing:
         raise ValueError(f"comparison clusters are missing columns {missing}")
+    # no variant (a missing column, or NULL) = the method itself; grouping would drop a NULL key
+    variant = clusters["variant"].fillna("") if "variant" in clusters.columns else ""
+    clusters = clusters.assign(variant=variant)
     if not 0 < confidence < 1:
         raise ValueError(f"confidence must lie in (0, 1), got {confidence}")
     if clusters.empty:
         return pd.DataFrame({c: pd.Series(dtype=object) for c in names})
-    duplicated = clusters.duplicated(["reference_source", "source", "method", "task", "demonstration"])
+    duplicated = clusters.duplicated(["reference_source", "source", "method", "variant", "task", "demonstration"])
     if duplicated.any():
         first = clusters[duplicated].iloc[0]
         raise ValueError(f"comparison clusters: demonstration {first['demonstration']!r} appears twice in one cell")
     rows: list[dict] = []
     for (reference, source), group in clusters.groupby(["reference_source", "source"], sort=True):
-        pooled = group.groupby(["method", "demonstration"], as_index=False)[list(CLUSTER_COLUMNS)].sum()
+        pooled = group.groupby(["method", "variant", "demonstration"], as_index=False)[list(CLUSTER_COLUMNS)].sum()
         cells = [(task, g) for task, g in group.groupby("task", sort=True)] + [(ALL, pooled)]
         for task, g in cells:
             keys = {"reference_source": reference, "source": source, "task": task}
@@ -264,4 +276,5 @@ def comparison_table(
     table = pd.DataFrame(rows)
     family = ["reference_source", "source", "task", "metric"]
     table["p_holm"] = table.groupby(family, sort=False)["p_value"].transform(lambda p: holm(p.to_numpy()))
-    return table.sort_values(["reference_source", "source", "metric", "task", "method"], ignore_index=True)[names]
+    order = ["reference_source", "source", "metric", "task", "method", "variant"]
+    return table.sort_values(order, ignore_index=True)[names]
