@@ -76,3 +76,40 @@ def test_readers_coexist_with_each_other(layout: DataLayout) -> None:
     finally:
         a.close()
         b.close()
+
+
+def test_a_column_no_file_holds_yet_reads_as_null(tmp_path: Path) -> None:
+    """A data folder written before a table gained a column (here comparison's ``variant``) still has a
+    catalog: the column reads as NULL where no file holds it, its value where some do."""
+    import pyarrow as pa
+
+    from schemas.tables import SCHEMAS
+
+    layout = DataLayout(tmp_path / "data")
+    schema = SCHEMAS["comparison"]
+    row = {f.name: None for f in schema} | {
+        "reference_source": "human",
+        "source": "real",
+        "metric": "f1",
+        "task": "*",
+        "method": "touch2robot",
+        "variant": "",
+        "n_demonstrations": 4,
+        "n_paired": 0,
+        "confidence": 0.95,
+        "n_resamples": 100,
+    }
+    old = pa.Table.from_pylist([row], schema=schema).drop_columns(["variant"])
+    lake_io.write_atomic(old, lake_io.file_path(layout.lake, "comparison", "human__real"))
+    catalog.refresh(layout)
+    assert catalog.query(layout, "SELECT method, variant FROM comparison").to_pylist() == [
+        {"method": "touch2robot", "variant": None}
+    ]
+    lake_io.write_rows(
+        layout.lake, "comparison", "human__sim", pa.Table.from_pylist([row | {"source": "sim"}], schema=schema)
+    )
+    catalog.refresh(layout)
+    assert catalog.query(layout, "SELECT source, variant FROM comparison ORDER BY source").to_pylist() == [
+        {"source": "real", "variant": None},
+        {"source": "sim", "variant": ""},
+    ]

@@ -26,6 +26,7 @@ from typing import Any
 
 import duckdb
 import pyarrow as pa
+import pyarrow.parquet as pq
 
 from schemas.tables import DOCS, PARTITIONS, SCHEMAS
 from touch2robot import lake as lake_io
@@ -79,14 +80,31 @@ def _glob_literal(path: Path) -> str:
     return re.sub(r"([*?\[])", r"[\1]", path.as_posix())
 
 
+def _stored_columns(files: list[Path], wanted: set[str]) -> set[str]:
+    """Which of ``wanted`` some file holds (footers only, newest first: usually the first has them all)."""
+    found: set[str] = set()
+    for path in sorted(files, key=lambda f: f.stat().st_mtime_ns, reverse=True):
+        found |= wanted & set(pq.read_schema(path).names)
+        if found == wanted:
+            break
+    return found
+
+
 def _view_sql(lake: Path, name: str) -> str:
     schema = SCHEMAS[name]
-    if not lake_io.files(lake, name):
+    files = lake_io.files(lake, name)
+    if not files:
         cols = ", ".join(f'CAST(NULL AS {_sql_type(f.type)}) AS "{f.name}"' for f in schema)
         return f"CREATE OR REPLACE VIEW {name} AS SELECT {cols} WHERE false"
     glob = _sql_string(_glob_literal(lake / name) + "/**/*.parquet")
     hive = "true" if PARTITIONS.get(name) else "false"
-    cols = ", ".join(f'"{f.name}"' for f in schema)  # contract column order, partition columns included
+    partitions = set(PARTITIONS.get(name, ()))
+    # a column no file holds yet (files written before the column existed) reads as NULL instead of
+    # failing the whole catalog; union_by_name fills it where only some files lack it
+    stored = _stored_columns(files, {f.name for f in schema} - partitions) | partitions
+    cols = ", ".join(
+        f'"{f.name}"' if f.name in stored else f'CAST(NULL AS {_sql_type(f.type)}) AS "{f.name}"' for f in schema
+    )  # contract column order, partition columns included
     return (
         f"CREATE OR REPLACE VIEW {name} AS SELECT {cols} "
         f"FROM read_parquet({glob}, hive_partitioning = {hive}, union_by_name = true)"
