@@ -14,7 +14,9 @@ from pathlib import Path
 
 import pytest
 
-_SESSION_DIR = Path(tempfile.mkdtemp(prefix="touch2robot-tests-"))
+# a worker process that imports this module (a test's helper unpickled in a process pool) keeps its session's folder
+_SESSION_DIR = Path(os.environ.get("TOUCH2ROBOT_TEST_SESSION") or tempfile.mkdtemp(prefix="touch2robot-tests-"))
+os.environ["TOUCH2ROBOT_TEST_SESSION"] = str(_SESSION_DIR)
 os.environ["TOUCH2ROBOT_DATA"] = str(_SESSION_DIR / "data")
 os.environ["PREFECT_HOME"] = str(_SESSION_DIR / "prefect")
 os.environ["PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS"] = "180"
