@@ -317,3 +317,44 @@ def lerobot_frame(dataset, index: int) -> dict:
     frame = dataset[index]
     assert isinstance(frame, dict)
     return frame
+
+
+def comparison_clusters(
+    skills: dict[str, float],
+    scorings: tuple[tuple[str, str], ...] = (("human", "sim"),),
+    n_demos: int = 10,
+    seed: int = 0,
+    scores=lambda method, demo: True,
+):
+    """Per-demonstration sums (the comparison's clusters) of methods of the given contact ``skills`` (their
+    recall) on the same demonstrations of pick and rotate, per (reference_source, source) scoring; a method
+    scores a demonstration only where ``scores(method, k)``."""
+    import numpy as np
+    import pandas as pd
+
+    rng = np.random.default_rng(seed)
+    rows = []
+    for reference, source in scorings:
+        for task in ("pick", "rotate"):
+            for k in range(n_demos):
+                for method, skill in skills.items():
+                    if not scores(method, k):
+                        continue
+                    pos = int(rng.integers(20, 80))
+                    tp, fp = int(rng.binomial(pos, skill)), int(rng.integers(0, 15))
+                    rows.append(
+                        {
+                            "reference_source": reference,
+                            "source": source,
+                            "method": method,
+                            "task": task,
+                            "demonstration": f"{task}-{k}",
+                            "tp": tp,
+                            "fp": fp,
+                            "fn": pos - tp,
+                            "tn": 200 - pos - fp,
+                            "onset_error_sum_ms": float(rng.uniform(20, 300) * (2 - skill)),
+                            "onset_pairs": 8,
+                        }
+                    )
+    return pd.DataFrame(rows)

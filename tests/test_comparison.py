@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import comparison_clusters
 from scipy import stats
 from statsmodels.stats.multitest import multipletests
 from statsmodels.stats.proportion import proportion_confint
@@ -107,34 +108,9 @@ def test_wilson_interval_matches_statsmodels(k: int, n: int) -> None:
     assert wilson_interval(k, n) == pytest.approx(tuple(theirs), abs=1e-12)
 
 
-def _clusters(n_demos: int = 10) -> pd.DataFrame:
+def _clusters() -> pd.DataFrame:
     """Three methods on the same demonstrations of two tasks; 'c' scores only half of them."""
-    rows = []
-    rng = np.random.default_rng(11)
-    for task in ("pick", "rotate"):
-        for k in range(n_demos):
-            for method, skill in (("a", 0.8), ("b", 0.6), ("c", 0.7)):
-                if method == "c" and k % 2:
-                    continue
-                pos = int(rng.integers(20, 80))
-                tp = int(rng.binomial(pos, skill))
-                fp = int(rng.integers(0, 15))
-                rows.append(
-                    {
-                        "reference_source": "human",
-                        "source": "sim",
-                        "method": method,
-                        "task": task,
-                        "demonstration": f"{task}-{k}",
-                        "tp": tp,
-                        "fp": fp,
-                        "fn": pos - tp,
-                        "tn": 200 - pos - fp,
-                        "onset_error_sum_ms": float(rng.uniform(0, 400)),
-                        "onset_pairs": 8,
-                    }
-                )
-    return pd.DataFrame(rows)
+    return comparison_clusters({"a": 0.8, "b": 0.6, "c": 0.7}, seed=11, scores=lambda m, k: m != "c" or k % 2 == 0)
 
 
 def test_the_comparison_table_pools_demonstrations_pairs_them_and_holm_corrects_each_family() -> None:

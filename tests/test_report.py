@@ -9,10 +9,10 @@ import os
 import shutil
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pytest
+from conftest import comparison_clusters
 
 from schemas.tables import SCHEMAS
 from touch2robot import lake as lake_io
@@ -27,33 +27,10 @@ CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 METHODS = ("touch2robot", "contrack", "dexmachina", "dex-retargeting")
 
 
-def _clusters(seed: int = 0) -> pd.DataFrame:
+def _clusters() -> pd.DataFrame:
     """Four methods on the same 6 demonstrations of two tasks, for fidelity and preference alignment."""
-    rng = np.random.default_rng(seed)
-    rows = []
-    for reference, source in (("real", "sim"), ("human", "real")):
-        for task in ("pick", "rotate"):
-            for k in range(6):
-                for method, skill in zip(METHODS, (0.9, 0.6, 0.62, 0.4), strict=True):
-                    pos = int(rng.integers(30, 90))
-                    tp = int(rng.binomial(pos, skill))
-                    fp = int(rng.integers(0, 12))
-                    rows.append(
-                        {
-                            "reference_source": reference,
-                            "source": source,
-                            "method": method,
-                            "task": task,
-                            "demonstration": f"{task}-{k}",
-                            "tp": tp,
-                            "fp": fp,
-                            "fn": pos - tp,
-                            "tn": 300 - pos - fp,
-                            "onset_error_sum_ms": float(rng.uniform(20, 300) * (2 - skill)),
-                            "onset_pairs": 8,
-                        }
-                    )
-    return pd.DataFrame(rows)
+    skills = dict(zip(METHODS, (0.9, 0.6, 0.62, 0.4), strict=True))
+    return comparison_clusters(skills, (("real", "sim"), ("human", "real")), n_demos=6)
 
 
 def _policy_rows() -> pd.DataFrame:
