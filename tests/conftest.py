@@ -10,6 +10,7 @@ import shutil
 import signal
 import subprocess
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 
 import pytest
@@ -320,7 +321,7 @@ def lerobot_frame(dataset, index: int) -> dict:
 
 
 def comparison_clusters(
-    skills: dict[str, float],
+    skills: Mapping[str, float],
     scorings: tuple[tuple[str, str], ...] = (("human", "sim"),),
     n_demos: int = 10,
     seed: int = 0,
