@@ -29,7 +29,7 @@ METHODS = ("touch2robot", "contrack", "dexmachina", "dex-retargeting")
 
 def _clusters() -> pd.DataFrame:
     """Four methods on the same 6 demonstrations of two tasks, for fidelity and preference alignment."""
-    skills = dict(zip(METHODS, (0.9, 0.6, 0.62, 0.4), strict=True))
+    skills: dict[str, float] = dict(zip(METHODS, (0.9, 0.6, 0.62, 0.4), strict=True))
     return comparison_clusters(skills, (("real", "sim"), ("human", "real")), n_demos=6)
 
 
