@@ -18,6 +18,14 @@ from touch2robot.config import load_profile
 from touch2robot.provenance import code_version
 from touch2robot.settings import DataLayout
 
+# Per task, the first demonstration replayed on the robot: the human's contacts and every method's measured ones
+TIMELINES_SQL = """
+WITH chosen AS (SELECT task, min(reference_id) AS reference_id FROM contacts WHERE source = 'real' GROUP BY task)
+SELECT c.source, c.method, c.task, c.reference_id, c.t_ref, c.region, c.contact
+FROM contacts c JOIN chosen USING (task, reference_id)
+WHERE c.source IN ('human', 'real')
+"""
+
 
 @task(**ALWAYS_RUN)
 def build_report(data: str, profile: str) -> dict:
@@ -44,7 +52,8 @@ def build_report(data: str, profile: str) -> dict:
         "code": code_version(),
         "data": f"{layout.root} (tables digest {rp.table_digest(*tables.values())})",
     }
-    report = rp.ReportData(tables["comparison"], tables["policy_eval"], tables["user_study"], provenance)
+    timelines = catalog.query(layout, TIMELINES_SQL).to_pandas()
+    report = rp.ReportData(tables["comparison"], tables["policy_eval"], tables["user_study"], provenance, timelines)
     report = dataclasses.replace(report, figures=rp.draw_figures(report))
     folder = layout.reports / f"{stamp}-{config.name}"
     markdown, page = rp.write_report(folder, report, versus)

@@ -5,10 +5,12 @@ as a Prefect artefact and an MLflow run."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pytest
@@ -182,3 +184,35 @@ def test_a_headless_chromium_renders_every_table_and_figure_of_the_page(reported
             assert (tmp_path / "report.png").stat().st_size > 10_000
         finally:
             browser.close()
+
+
+def test_each_replayed_demonstration_gets_its_methods_contact_timelines_side_by_side() -> None:
+    from touch2robot.report import ReportData, draw_figures, render_html, render_markdown
+
+    t = np.linspace(0.0, 2.0, 41)
+    rows = [
+        {
+            "source": source,
+            "method": method,
+            "task": task,
+            "reference_id": demo,
+            "t_ref": x,
+            "region": region,
+            "contact": bool(x > shift),
+        }
+        for task, demo in (("pick", "d1"), ("wipe", "d7"))
+        for source, method, shift in (("human", "human", 0.5), ("real", "touch2robot", 0.6), ("real", "contrack", 1.5))
+        for region in ("T1", "P1")
+        for x in t
+    ]
+    comparison, policy, study = (
+        SCHEMAS[t].empty_table().to_pandas() for t in ("comparison", "policy_eval", "user_study")
+    )
+    data = ReportData(comparison, policy, study, {"profile": "test"}, pd.DataFrame(rows))
+    figures = draw_figures(data)
+    assert set(figures) == {"timeline_pick_d1", "timeline_wipe_d7"} and all(
+        len(png) > 10_000 for png in figures.values()
+    )
+    page = render_html(dataclasses.replace(data, figures=figures), "touch2robot")
+    assert page.count("<img") == 2 and "Contact timelines: wipe, demonstration d7" in page
+    assert "## Contact timelines: pick, demonstration d1" in render_markdown(data, "touch2robot")

@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from schemas.tables import ROBOT_REGIONS
 from schemas.vocabulary import Source
 from touch2robot import lake as lake_io
 from touch2robot.metrics import ALL
@@ -56,6 +57,9 @@ class ReportData:
     policy: pd.DataFrame
     user_study: pd.DataFrame
     provenance: dict[str, str]
+    # contacts rows (source, method, task, reference_id, t_ref, region, contact) of a few demonstrations:
+    # the human's and every method's replays of them, drawn side by side
+    timelines: pd.DataFrame = field(default_factory=pd.DataFrame)
     figures: dict[str, bytes] = field(default_factory=dict)  # name -> PNG, filled by :func:`draw_figures`
 
 
@@ -237,10 +241,25 @@ def _user_study_section(user_study: pd.DataFrame) -> Section | None:
     return Section("User study", ["ratings", "question", "median VF / T2R", "Wilcoxon p", "p_Holm"], rows)
 
 
+def _timeline_sections(timelines: pd.DataFrame) -> list[Section]:
+    if timelines.empty:
+        return []
+    return [
+        Section(
+            f"Contact timelines: {task}, demonstration {demonstration}",
+            [],
+            [],
+            figure=_timeline_name(str(task), str(demonstration)),
+            note="per robot region: the human's contacts, then each method's measured on its replay (glove clock)",
+        )
+        for (task, demonstration), _ in timelines.groupby(["task", "reference_id"], sort=True)
+    ]
+
+
 def _sections(data: ReportData) -> list[Section]:
     found = _score_sections(data.comparison)
     found += [s for s in (_policy_section(data.policy), _user_study_section(data.user_study)) if s is not None]
-    return found
+    return found + _timeline_sections(data.timelines)
 
 
 # --------------------------------------------------------------------------- figures
@@ -280,6 +299,40 @@ def _bars(groups: list[str], series: Mapping[str, list[tuple]], ylabel: str, tit
     return _png(fig)
 
 
+def _timeline_name(task: str, demonstration: str) -> str:
+    return f"timeline_{task}_{demonstration}"
+
+
+def _timeline(rows: pd.DataFrame, title: str) -> bytes:
+    """One demonstration's contacts, one band per (region, source): the human's on top of each method's."""
+    from matplotlib.figure import Figure
+    from matplotlib.patches import Patch
+
+    human = rows[rows["source"] == Source.HUMAN]
+    methods = sorted(set(rows.loc[rows["source"] != Source.HUMAN, "method"]))
+    lanes = [("human", human), *((m, rows[(rows["source"] != Source.HUMAN) & (rows["method"] == m)]) for m in methods)]
+    fig = Figure(figsize=(10, 0.5 + 0.32 * len(ROBOT_REGIONS) * len(lanes) / 2), layout="constrained")
+    ax = fig.subplots()
+    height = 1.0 / len(lanes)
+    for k, region in enumerate(ROBOT_REGIONS):
+        for j, (_, lane) in enumerate(lanes):
+            r = lane[lane["region"] == region].sort_values("t_ref")
+            low = k + 0.05 + j * 0.9 * height  # the axis is inverted: the human's lane tops each region's band
+            ax.fill_between(
+                r["t_ref"], low, low + 0.75 * height * r["contact"].astype(float), step="post", color=f"C{j}", lw=0
+            )
+    ax.set_yticks(np.arange(len(ROBOT_REGIONS)) + 0.5, ROBOT_REGIONS)
+    ax.set_ylim(0, len(ROBOT_REGIONS))
+    ax.invert_yaxis()
+    ax.set_xlabel("time on the glove recording's clock (s)")
+    handles = [Patch(color=f"C{j}", label=name) for j, (name, _) in enumerate(lanes)]
+    ax.legend(handles=handles, fontsize=8, ncols=len(lanes), loc="upper center", bbox_to_anchor=(0.5, -0.09))
+    for k in range(1, len(ROBOT_REGIONS)):
+        ax.axhline(k, color="0.85", lw=0.5)
+    ax.set_title(title, fontsize=10)
+    return _png(fig)
+
+
 def draw_figures(data: ReportData) -> dict[str, bytes]:
     """Bars with interval whiskers: each scored source's F1 and onset error per task, and policy success."""
     figures: dict[str, bytes] = {}
@@ -310,6 +363,10 @@ def draw_figures(data: ReportData) -> dict[str, bytes]:
             for method in sorted(set(data.policy["method"]))
         }
         figures["policy_success"] = _bars(tasks, series, "success rate", "policy success (95 % Wilson interval)")
+    if not data.timelines.empty:
+        for (task, demonstration), rows in data.timelines.groupby(["task", "reference_id"], sort=True):
+            title = f"{task}, demonstration {demonstration}: contacts per region"
+            figures[_timeline_name(str(task), str(demonstration))] = _timeline(rows, title)
     return figures
 
 
@@ -332,9 +389,10 @@ def render_markdown(data: ReportData, versus: str) -> str:
     found = claims(data.comparison, data.policy, versus)
     lines += [f"- **{c.verdict}**: {c.statement}. {c.evidence}" for c in found] or ["- nothing compared yet"]
     for section in _sections(data):
-        lines += ["", f"## {section.title}", "", "| " + " | ".join(section.header) + " |"]
-        lines += ["|" + "---|" * len(section.header)]
-        lines += ["| " + " | ".join(row) + " |" for row in section.rows]
+        lines += ["", f"## {section.title}", ""]
+        if section.header:
+            lines += ["| " + " | ".join(section.header) + " |", "|" + "---|" * len(section.header)]
+            lines += ["| " + " | ".join(row) + " |" for row in section.rows]
         if section.note:
             lines += ["", f"_{section.note}_"]
     lines += ["", "## Statistics", "", _STATISTICS, ""]
@@ -380,7 +438,8 @@ def render_html(data: ReportData, versus: str) -> str:
     parts.append("</ul>")
     for section in _sections(data):
         parts.append(f"<section><h2>{html.escape(section.title)}</h2>")
-        parts.append(_html_table(section.header, section.rows))
+        if section.header:
+            parts.append(_html_table(section.header, section.rows))
         if section.note:
             parts.append(f"<p class='note'>{html.escape(section.note)}</p>")
         if section.figure and section.figure in data.figures:
