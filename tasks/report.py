@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import time
 
+import pandas as pd
 from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact
 
@@ -25,6 +26,38 @@ SELECT c.source, c.method, c.task, c.reference_id, c.t_ref, c.region, c.contact
 FROM contacts c JOIN chosen USING (task, reference_id)
 WHERE c.source IN ('human', 'real')
 """
+
+
+# (stage, the metric its training runs log, the run tags that name a curve's panel and its line)
+CURVES = (
+    ("teachers", "Train/mean_reward", "task", "method"),
+    ("student", "val/loss", None, "variant"),
+    ("policy", "train/loss", "task", "method"),
+)
+
+
+def _learning_curves(layout: DataLayout) -> pd.DataFrame:
+    """The training curves of the stages' MLflow runs (rows stage, panel, series, step, value); a stage
+    that has not run has none."""
+    import mlflow
+
+    mlflow.set_tracking_uri(tracking.tracking_uri(layout))
+    client = mlflow.MlflowClient()
+    rows = []
+    for stage, metric, panel, series in CURVES:
+        experiment = client.get_experiment_by_name(f"touch2robot/{stage}")
+        if experiment is None:
+            continue
+        for run in client.search_runs([experiment.experiment_id], f"metrics.`{metric}` > -1e300"):
+            tags = run.data.tags
+            if series not in tags:
+                continue
+            label = tags[panel] if panel else "all"
+            rows += [
+                {"stage": stage, "panel": label, "series": tags[series], "step": m.step, "value": m.value}
+                for m in client.get_metric_history(run.info.run_id, metric)
+            ]
+    return pd.DataFrame(rows, columns=["stage", "panel", "series", "step", "value"])
 
 
 @task(**ALWAYS_RUN)
@@ -53,7 +86,10 @@ def build_report(data: str, profile: str) -> dict:
         "data": f"{layout.root} (tables digest {rp.table_digest(*tables.values())})",
     }
     timelines = catalog.query(layout, TIMELINES_SQL).to_pandas()
-    report = rp.ReportData(tables["comparison"], tables["policy_eval"], tables["user_study"], provenance, timelines)
+    curves = _learning_curves(layout)
+    report = rp.ReportData(
+        tables["comparison"], tables["policy_eval"], tables["user_study"], provenance, timelines, curves
+    )
     report = dataclasses.replace(report, figures=rp.draw_figures(report))
     folder = layout.reports / f"{stamp}-{config.name}"
     markdown, page = rp.write_report(folder, report, versus)

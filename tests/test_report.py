@@ -84,7 +84,22 @@ def reported(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict, pd.D
     _write(data / "lake", "policy_eval", "all", _policy_rows())
     ratings = synthetic_ratings()
     _write(data / "lake", "user_study", "ratings", user_study_table(ratings, "ratings_SYNTHETIC.csv", "0" * 64, True))
+    _log_teacher_curves(data)
     return data, report(profile="smoke", data=str(data)), comparison
+
+
+def _log_teacher_curves(data: Path) -> None:
+    """Two teachers' reward curves in MLflow, as the teachers stage logs them."""
+    import mlflow
+
+    from tasks import tracking
+    from touch2robot.settings import DataLayout
+
+    for method, rewards in (("touch2robot", (1.0, 2.0, 3.5)), ("contrack", (0.5, 1.5, 1.7))):
+        tags = {"method": method, "task": "pick"}
+        with tracking.stage_run(DataLayout.from_env(data), "teachers", f"teacher-pick-{method}", tags):
+            for step, reward in enumerate(rewards):
+                mlflow.log_metric("Train/mean_reward", reward, step=step)
 
 
 def test_the_report_states_each_claim_from_its_interval(reported) -> None:
@@ -135,6 +150,7 @@ def test_the_report_is_published_as_files_an_artefact_and_an_mlflow_run(reported
     for heading in ("## What this run found", "Tactile fidelity", "Preference alignment", "## Policy success"):
         assert heading in text, heading
     assert "## User study" in text and "(SYNTHETIC)" in text and "| code | git " in text
+    assert "## Learning curves: PPO teachers" in text and "Learning curves: Distilled student" not in text
     experiment = tracking.experiment(DataLayout.from_env(data), "report")
     client = mlflow.MlflowClient()
     assert {a.path for a in client.list_artifacts(result["mlflow_run"])} == {"report.html", "report.md"}
@@ -173,7 +189,7 @@ def test_a_headless_chromium_renders_every_table_and_figure_of_the_page(reported
             images = page.locator("img")
             # provenance, 2 scored sources x (F1, onset error), policy success, user study
             assert tables.count() == 1 + 4 + 2
-            assert images.count() == 4 + 1
+            assert images.count() == 4 + 1 + 1  # ... and the teachers' learning curves
             for k in range(images.count()):
                 size = images.nth(k).evaluate("img => [img.complete, img.naturalWidth, img.naturalHeight]")
                 assert size[0] and size[1] > 100 and size[2] > 100, (k, size)

@@ -60,6 +60,8 @@ class ReportData:
     # contacts rows (source, method, task, reference_id, t_ref, region, contact) of a few demonstrations:
     # the human's and every method's replays of them, drawn side by side
     timelines: pd.DataFrame = field(default_factory=pd.DataFrame)
+    # learning curves (stage, panel, series, step, value): the teachers', the student variants', the policies'
+    curves: pd.DataFrame = field(default_factory=pd.DataFrame)
     figures: dict[str, bytes] = field(default_factory=dict)  # name -> PNG, filled by :func:`draw_figures`
 
 
@@ -256,10 +258,29 @@ def _timeline_sections(timelines: pd.DataFrame) -> list[Section]:
     ]
 
 
+# What each stage's curve shows (the metric its MLflow runs log over training).
+CURVE_LABELS = {
+    "teachers": "PPO teachers: mean episode reward per iteration",
+    "student": "Distilled student: validation loss per update, per variant",
+    "policy": "Diffusion Policies: training loss per update",
+}
+
+
+def _curve_sections(curves: pd.DataFrame) -> list[Section]:
+    if curves.empty:
+        return []
+    return [
+        Section(f"Learning curves: {CURVE_LABELS.get(str(stage), stage)}", [], [], figure=f"curves_{stage}")
+        for stage in sorted(
+            set(curves["stage"]), key=lambda st: list(CURVE_LABELS).index(st) if st in CURVE_LABELS else 9
+        )
+    ]
+
+
 def _sections(data: ReportData) -> list[Section]:
     found = _score_sections(data.comparison)
     found += [s for s in (_policy_section(data.policy), _user_study_section(data.user_study)) if s is not None]
-    return found + _timeline_sections(data.timelines)
+    return found + _timeline_sections(data.timelines) + _curve_sections(data.curves)
 
 
 # --------------------------------------------------------------------------- figures
@@ -333,6 +354,24 @@ def _timeline(rows: pd.DataFrame, title: str) -> bytes:
     return _png(fig)
 
 
+def _curves(rows: pd.DataFrame, title: str) -> bytes:
+    """One panel per ``panel`` value (e.g. a task), one line per ``series`` (e.g. a method)."""
+    from matplotlib.figure import Figure
+
+    panels = sorted(set(rows["panel"]))
+    fig = Figure(figsize=(min(12.0, 3.2 * len(panels) + 1), 3.0), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(1, len(panels), sharey=True))
+    for ax, panel in zip(axes, panels, strict=True):
+        for series, line in rows[rows["panel"] == panel].groupby("series", sort=True):
+            line = line.sort_values("step")
+            ax.plot(line["step"], line["value"], label=str(series), lw=1.2)
+        ax.set_title(str(panel), fontsize=9)
+        ax.set_xlabel("step")
+    axes[0].legend(fontsize=7)
+    fig.suptitle(title, fontsize=10)
+    return _png(fig)
+
+
 def draw_figures(data: ReportData) -> dict[str, bytes]:
     """Bars with interval whiskers: each scored source's F1 and onset error per task, and policy success."""
     figures: dict[str, bytes] = {}
@@ -363,6 +402,9 @@ def draw_figures(data: ReportData) -> dict[str, bytes]:
             for method in sorted(set(data.policy["method"]))
         }
         figures["policy_success"] = _bars(tasks, series, "success rate", "policy success (95 % Wilson interval)")
+    if not data.curves.empty:
+        for stage, rows in data.curves.groupby("stage", sort=True):
+            figures[f"curves_{stage}"] = _curves(rows, CURVE_LABELS.get(str(stage), str(stage)))
     if not data.timelines.empty:
         for (task, demonstration), rows in data.timelines.groupby(["task", "reference_id"], sort=True):
             title = f"{task}, demonstration {demonstration}: contacts per region"
