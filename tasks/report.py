@@ -1,5 +1,5 @@
 """The report task: the catalog's comparison, policy and user-study tables -> report.md and a
-self-contained report.html under <data>/reports/<time>-<profile>/, a Prefect markdown artefact and
+self-contained report.html under <data>/reports/<profile>-<digest>/, a Prefect markdown artefact and
 an MLflow run holding the page."""
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from prefect.artifacts import create_markdown_artifact
 from tasks import tracking
 from tasks.common import ALWAYS_RUN
 from touch2robot import catalog
+from touch2robot import lake as lake_io
 from touch2robot import report as rp
 from touch2robot.config import load_profile
 from touch2robot.provenance import code_version
@@ -62,8 +63,9 @@ def _learning_curves(layout: DataLayout) -> pd.DataFrame:
 
 @task(**ALWAYS_RUN)
 def build_report(data: str, profile: str) -> dict:
-    """Write the run's report from the catalog (refreshed first by the caller) and publish it. Not cached:
-    it reads whatever the catalog holds now, and costs seconds."""
+    """Write the run's report from the catalog (refreshed first by the caller) and the stages' MLflow curves,
+    and publish it. Its folder is named by the digest of everything it shows: a re-run on unchanged results
+    finds the report already there and adds no MLflow run; changed results make a new one beside it."""
     import mlflow
 
     layout = DataLayout.from_env(data)
@@ -72,8 +74,9 @@ def build_report(data: str, profile: str) -> dict:
         name: catalog.query(layout, f"SELECT * FROM {name}").to_pandas()
         for name in ("comparison", "policy_eval", "user_study")
     }
+    timelines = catalog.query(layout, TIMELINES_SQL).to_pandas()
+    curves = _learning_curves(layout)
     versus = str(config.comparison.versus)
-    stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
     provenance = {
         "profile": config.name,
         "created": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
@@ -85,25 +88,27 @@ def build_report(data: str, profile: str) -> dict:
         "code": code_version(),
         "data": f"{layout.root} (tables digest {rp.table_digest(*tables.values())})",
     }
-    timelines = catalog.query(layout, TIMELINES_SQL).to_pandas()
-    curves = _learning_curves(layout)
+    shown = rp.table_digest(*tables.values(), timelines, curves, pd.DataFrame([provenance]).drop(columns="created"))
+    folder = layout.reports / f"{config.name}-{shown}"
     report = rp.ReportData(
         tables["comparison"], tables["policy_eval"], tables["user_study"], provenance, timelines, curves
     )
-    report = dataclasses.replace(report, figures=rp.draw_figures(report))
-    folder = layout.reports / f"{stamp}-{config.name}"
-    markdown, page = rp.write_report(folder, report, versus)
-    create_markdown_artifact(markdown.read_text(), key="report", description=f"touch2robot report, {config.name}")
-    tags = {"profile": config.name, "code": provenance["code"], "compared_with": versus}
-    with tracking.stage_run(layout, "report", f"report-{config.name}", tags) as run:
-        mlflow.log_artifact(str(page))
-        mlflow.log_artifact(str(markdown))
     found = rp.claims(report.comparison, report.policy, versus)
+    markdown, page, run_file = folder / "report.md", folder / "report.html", folder / "mlflow_run_id"
+    if not (markdown.is_file() and page.is_file() and run_file.is_file()):
+        report = dataclasses.replace(report, figures=rp.draw_figures(report))
+        markdown, page = rp.write_report(folder, report, versus)
+        tags = {"profile": config.name, "code": provenance["code"], "compared_with": versus}
+        with tracking.stage_run(layout, "report", f"report-{config.name}", tags) as run:
+            mlflow.log_artifact(str(page))
+            mlflow.log_artifact(str(markdown))
+        lake_io.replace_text(run.info.run_id, run_file)
+    create_markdown_artifact(markdown.read_text(), key="report", description=f"touch2robot report, {config.name}")
     get_run_logger().info("report: %s (%d claims stated)", page, len(found))
     return {
         "folder": str(folder),
         "html": str(page),
         "markdown": str(markdown),
         "claims": [dataclasses.asdict(c) for c in found],
-        "mlflow_run": run.info.run_id,
+        "mlflow_run": run_file.read_text().strip(),
     }

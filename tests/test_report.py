@@ -159,6 +159,12 @@ def test_the_report_is_published_as_files_an_artefact_and_an_mlflow_run(reported
     assert tags["stage"] == "report" and tags["code"] == code_version() and tags["code"].startswith("git ")
     assert tags["code"].split()[1] == tags["mlflow.source.git.commit"]
     assert client.get_experiment(experiment).tags["mlflow.note.content"].startswith("The run's report")
+    # the same results again: the same report, no second MLflow run
+    from flows.report import report
+
+    again = report(profile="smoke", data=str(data))
+    assert (again["html"], again["mlflow_run"]) == (result["html"], result["mlflow_run"])
+    assert len(client.search_runs([experiment])) == 1
 
 
 def _browser():
