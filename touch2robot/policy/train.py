@@ -130,7 +130,7 @@ def _prune_checkpoints(output_dir: Path, keep: int) -> None:
     """Delete all but the newest ``keep`` step checkpoints; the one ``last`` names always stays."""
     folder = Path(output_dir) / CHECKPOINTS
     last = last_checkpoint(output_dir)
-    steps = sorted(p for p in folder.iterdir() if p.name.isdigit() and not p.is_symlink())
+    steps = sorted((p for p in folder.iterdir() if p.name.isdigit() and not p.is_symlink()), key=lambda p: int(p.name))
     for stale in steps[:-keep]:
         if stale != last:
             shutil.rmtree(stale)
