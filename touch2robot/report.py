@@ -1,8 +1,9 @@
 """The run's report: what the comparison found, as Markdown and as one self-contained HTML page.
 
-Reads only what the catalog holds (``comparison``, ``policy_eval``, ``user_study``: the caller
-queries them), so anyone can reproduce every figure with ``touch2robot sql``. The paper's claims are
-stated from the intervals, never from the point estimates alone:
+Every figure and claim comes from what the catalog holds (``comparison``, ``policy_eval``,
+``user_study``, a few demonstrations' ``contacts``: the caller queries them), so anyone can reproduce
+them with ``touch2robot sql``; the learning curves come from the stages' MLflow runs. The paper's
+claims are stated from the intervals, never from the point estimates alone:
 
 - a contact claim (``versus`` scores higher F1 / a lower onset error than a method) **holds** when
   the paired interval of the difference lies wholly on the claimed side, **does not hold** when it
@@ -11,7 +12,7 @@ stated from the intervals, never from the point estimates alone:
   method's, does not hold when wholly below, and is not resolved when they overlap (no paired
   episode outcomes are stored, so no paired test is made).
 
-No Prefect imports: the flow ``report`` wraps :func:`write_report`.
+No Prefect imports: the task ``tasks.report.build_report`` gathers the data and calls these.
 """
 
 from __future__ import annotations
@@ -51,7 +52,7 @@ HIGHER_IS_BETTER = {"f1": True, "onset_error_ms": False}
 
 @dataclass(frozen=True)
 class ReportData:
-    """What a report shows: the catalog's tables and where they came from."""
+    """What a report shows: the catalog's tables, the curves, and where they came from."""
 
     comparison: pd.DataFrame
     policy: pd.DataFrame
