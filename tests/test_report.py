@@ -151,6 +151,7 @@ def test_the_report_is_published_as_files_an_artefact_and_an_mlflow_run(reported
         assert heading in text, heading
     assert "## User study" in text and "(SYNTHETIC)" in text and "| code | git " in text
     assert "## Learning curves: PPO teachers" in text and "Learning curves: Distilled student" not in text
+    assert "| method | precision | recall | F1 | false-positive rate |" in text
     experiment = tracking.experiment(DataLayout.from_env(data), "report")
     client = mlflow.MlflowClient()
     assert {a.path for a in client.list_artifacts(result["mlflow_run"])} == {"report.html", "report.md"}
@@ -193,8 +194,8 @@ def test_a_headless_chromium_renders_every_table_and_figure_of_the_page(reported
             page.wait_for_load_state("load")
             tables = page.locator("table")
             images = page.locator("img")
-            # provenance, 2 scored sources x (F1, onset error), policy success, user study
-            assert tables.count() == 1 + 4 + 2
+            # provenance, 2 scored sources x (all-task scores, F1 by task, onset error), policy success, user study
+            assert tables.count() == 1 + 2 * 3 + 2
             assert images.count() == 4 + 1 + 1  # ... and the teachers' learning curves
             for k in range(images.count()):
                 size = images.nth(k).evaluate("img => [img.complete, img.naturalWidth, img.naturalHeight]")

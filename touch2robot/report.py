@@ -164,13 +164,33 @@ class Section:
     note: str = ""
 
 
+def _coverage(comparison: pd.DataFrame) -> str:
+    """The comparison's interval coverage as text ("95 %")."""
+    return f"{100 * float(comparison['confidence'].iloc[0]):g} %" if len(comparison) else "95 %"
+
+
+def _scores_table(group: pd.DataFrame, scope: str, coverage: str) -> Section:
+    """Precision, recall, F1 and FPR over all tasks, per method: the paper's table shape."""
+    overall = group[group["task"] == ALL]
+    cells = {(_label(r), r["metric"]): r for r in overall.to_dict("records")}
+    metrics = ("precision", "recall", "f1", "fpr")
+    rows = [
+        [method] + [_interval(cells[(method, m)]) if (method, m) in cells else "-" for m in metrics]
+        for method in sorted({label for label, _ in cells})
+    ]
+    header = ["method", *(METRIC_LABELS[m] for m in metrics)]
+    return Section(f"{scope}: all tasks", header, rows, note=f"estimate [{coverage} interval over demonstrations]")
+
+
 def _score_sections(comparison: pd.DataFrame) -> list[Section]:
     sections = []
-    cells = sorted(comparison.groupby(["reference_source", "source"]), key=lambda c: (c[0][0] != Source.REAL, c[0]))
-    for (reference, source), group in cells:
+    coverage = _coverage(comparison)
+    scorings = sorted(comparison.groupby(["reference_source", "source"]), key=lambda c: (c[0][0] != Source.REAL, c[0]))
+    for (reference, source), group in scorings:
         scope = SCOPES.get(str(reference), f"scored against {reference}")
         if reference != Source.REAL:
             scope += f", {source} contacts"
+        sections.append(_scores_table(group, scope, coverage))
         tasks = sorted(set(group["task"]) - {ALL}) + [ALL]
         for metric in ("f1", "onset_error_ms"):
             rows = group[group["metric"] == metric]
@@ -201,7 +221,7 @@ def _score_sections(comparison: pd.DataFrame) -> list[Section]:
                     header,
                     body,
                     figure=_figure_name(str(reference), str(source), metric),
-                    note=f"estimate [95 % interval]; up to {n} demonstrations over all tasks",
+                    note=f"estimate [{coverage} interval]; up to {n} demonstrations over all tasks",
                 )
             )
     return sections
@@ -376,6 +396,7 @@ def _curves(rows: pd.DataFrame, title: str) -> bytes:
 def draw_figures(data: ReportData) -> dict[str, bytes]:
     """Bars with interval whiskers: each scored source's F1 and onset error per task, and policy success."""
     figures: dict[str, bytes] = {}
+    coverage = _coverage(data.comparison)
     for (reference, source, metric), rows in data.comparison.groupby(["reference_source", "source", "metric"]):
         if metric not in HIGHER_IS_BETTER:
             continue
@@ -388,7 +409,7 @@ def draw_figures(data: ReportData) -> dict[str, bytes]:
             for method in sorted({label for label, _ in cells})
         }
         labels = ["all" if t == ALL else t for t in tasks]
-        title = f"{_scope_name(str(reference), str(source))}: {METRIC_LABELS[str(metric)]} (95 % interval)"
+        title = f"{_scope_name(str(reference), str(source))}: {METRIC_LABELS[str(metric)]} ({coverage} interval)"
         figures[_figure_name(str(reference), str(source), str(metric))] = _bars(
             labels, series, METRIC_LABELS[str(metric)], title
         )
@@ -416,11 +437,11 @@ def draw_figures(data: ReportData) -> dict[str, bytes]:
 # --------------------------------------------------------------------------- rendering
 
 _STATISTICS = (
-    "Intervals: 95 % percentile intervals of a cluster bootstrap over demonstrations (the time-region samples of "
+    "Intervals: percentile intervals of a cluster bootstrap over demonstrations (the time-region samples of "
     "one demonstration are not independent), scores pooled over a resample's demonstrations. Paired differences "
     "resample the same demonstrations for both methods; the test is the two-sided Wilcoxon signed-rank test over "
     "the per-demonstration scores, Holm-adjusted over the methods compared on one metric, source and task. Success "
-    "rates carry Wilson intervals. touch2robot.comparison.statistics documents each choice."
+    "rates carry 95 % Wilson intervals. touch2robot.comparison.statistics documents each choice."
 )
 
 
