@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from statistics import fmean
 
 from prefect import flow
@@ -17,6 +16,7 @@ from flows.student import student
 from flows.synth import synth
 from flows.teachers import teachers
 from schemas.vocabulary import Origin, Source
+from touch2robot.report import as_text
 
 
 @flow(name="pipeline", log_prints=True)
@@ -56,19 +56,14 @@ def _by_scoring(rows: list[dict]) -> dict[tuple[str, str], list[dict]]:
     return grouped
 
 
-def _figure(value: float | None, spec: str) -> str:
-    """A figure of the comparison table; undefined ones (NULL: 0/0, a test with no non-zero difference) as n/a."""
-    return "n/a" if value is None or math.isnan(value) else format(value, spec)
-
-
 def _compared(row: dict) -> str:
     """One method's F1 with its interval and, where paired, the difference the compared-with method makes."""
-    text = f"{row['method']} F1 {_figure(row['estimate'], '.3f')} "
-    text += f"[{_figure(row['ci_low'], '.3f')}, {_figure(row['ci_high'], '.3f')}]"
+    text = f"{row['method']} F1 {as_text(row['estimate'], '.3f')} "
+    text += f"[{as_text(row['ci_low'], '.3f')}, {as_text(row['ci_high'], '.3f')}]"
     if row["versus"] is not None and row["n_paired"]:
-        text += f" ({row['versus']} - it: {_figure(row['difference'], '+.3f')} "
-        text += f"[{_figure(row['difference_ci_low'], '+.3f')}, {_figure(row['difference_ci_high'], '+.3f')}], "
-        text += f"Holm p {_figure(row['p_holm'], '.2g')}, n {row['n_paired']})"
+        text += f" ({row['versus']} - it: {as_text(row['difference'], '+.3f')} "
+        text += f"[{as_text(row['difference_ci_low'], '+.3f')}, {as_text(row['difference_ci_high'], '+.3f')}], "
+        text += f"Holm p {as_text(row['p_holm'], '.2g')}, n {row['n_paired']})"
     return text
 
 

@@ -20,6 +20,7 @@ from tasks import tracking
 from tasks.common import ALWAYS_RUN, cache_policy, checkpoint_on_stop, one_torch_thread
 from tasks.logs import TrainingProgress, both
 from touch2robot import datasets
+from touch2robot.evaluate import heldout_demonstration_sums
 from touch2robot.settings import DataLayout
 from touch2robot.student.config import StudentConfig
 from touch2robot.teachers.config import TeacherConfig
@@ -308,29 +309,12 @@ def reconstruct(
         with mlflow.start_run(run_id=trained["mlflow_run"]):
             mlflow.log_metrics({f"heldout/{task_name}/{k}": v for k, v in result.figures.items() if v == v})
         rows.append({"variant": variant, "task": task_name, "demos": len(refs), **result.figures})
-        sums.append(_demonstration_sums(layout.lake, task_name, ids, result.contacts))
+        sums.append(heldout_demonstration_sums(layout.lake, task_name, ids, result.contacts.to_pandas()))
     if sums:
         table = pd.concat(sums, ignore_index=True).assign(method=method, variant=variant)
         rows_arrow = pa.Table.from_pandas(table, schema=datasets.STUDENT_VARIANTS.schema, preserve_index=False)
         datasets.STUDENT_VARIANTS.write(layout.lake, (method, variant), rows_arrow)
     return rows
-
-
-def _demonstration_sums(lake: Path, task_name: str, held_out: list[str], reconstructed: pa.Table) -> pd.DataFrame:
-    """A variant's reconstructed contacts vs the human's, summed per held-out demonstration, scored as the
-    evaluation scores the full model's (touch2robot.evaluate.demonstration_sums)."""
-    from schemas.tables import SCHEMAS
-    from touch2robot import evaluate as ev
-
-    human = ev.read_contacts(lake, [Source.HUMAN], task=task_name)
-    scored = pd.concat(
-        [human[human["reference_id"].isin(held_out)], reconstructed.to_pandas()[list(ev.CONTACT_COLUMNS)]],
-        ignore_index=True,
-    )
-    no_time_map = SCHEMAS["time_map"].empty_table().to_pandas()  # a reconstruction carries t_ref already
-    onsets = ev.onset_errors_table(scored, no_time_map, Source.RECONSTRUCTED)
-    sums = ev.demonstration_sums(scored, onsets, Source.RECONSTRUCTED)
-    return sums.drop(columns=["reference_source", "source", "method"])
 
 
 @task(**ALWAYS_RUN)

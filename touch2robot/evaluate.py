@@ -55,6 +55,7 @@ __all__ = [
     "fidelity_replays",
     "file_id",
     "folder_digest",
+    "heldout_demonstration_sums",
     "is_synthetic",
     "onset_errors_table",
     "plot_metrics_by_method",
@@ -372,6 +373,22 @@ def demonstration_sums(
     sums["demonstration"] = [mapping.get(r, r) for r in sums["reference_id"]]
     sums = sums.groupby(["method", "task", "demonstration"], as_index=False, sort=True)[list(CLUSTER_COLUMNS)].sum()
     return sums.assign(reference_source=reference, source=eval_source)[names]
+
+
+def heldout_demonstration_sums(
+    lake: Path, task: str, held_out: Sequence[str], reconstructed: pd.DataFrame
+) -> pd.DataFrame:
+    """A student variant's reconstructed contacts (long rows, source reconstructed) vs the human's, summed per
+    held-out demonstration (task, demonstration and :data:`CLUSTER_COLUMNS`), scored as the evaluation scores
+    the full model's (:func:`demonstration_sums`)."""
+    human = read_contacts(lake, [Source.HUMAN], task=task)
+    scored = pd.concat(
+        [human[human["reference_id"].isin(list(held_out))], reconstructed[list(CONTACT_COLUMNS)]], ignore_index=True
+    )
+    no_time_map = SCHEMAS["time_map"].empty_table().to_pandas()  # a reconstruction carries t_ref already
+    onsets = onset_errors_table(scored, no_time_map, Source.RECONSTRUCTED)
+    sums = demonstration_sums(scored, onsets, Source.RECONSTRUCTED)
+    return sums.drop(columns=["reference_source", "source", "method"])
 
 
 def ablation_sums(lake: Path) -> pd.DataFrame:

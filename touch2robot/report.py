@@ -33,7 +33,7 @@ from schemas.vocabulary import Source
 from touch2robot import lake as lake_io
 from touch2robot.metrics import ALL
 
-__all__ = ["Claim", "ReportData", "claims", "render_html", "render_markdown", "write_report"]
+__all__ = ["Claim", "ReportData", "as_text", "claims", "render_html", "render_markdown", "write_report"]
 
 SCOPES: dict[str, str] = {
     Source.REAL: "Tactile fidelity: a trajectory's contacts in simulation vs those measured on its replay",
@@ -75,14 +75,15 @@ class Claim:
     evidence: str
 
 
-def _fmt(value: object, spec: str = ".3f") -> str:
+def as_text(value: object, spec: str = ".3f") -> str:
+    """A figure of the comparison; an undefined one (NULL: 0/0, a test with no non-zero difference) as n/a."""
     if value is None or (isinstance(value, float) and np.isnan(value)):
         return "n/a"
     return format(value, spec)
 
 
 def _interval(row: Mapping, spec: str = ".3f") -> str:
-    return f"{_fmt(row['estimate'], spec)} [{_fmt(row['ci_low'], spec)}, {_fmt(row['ci_high'], spec)}]"
+    return f"{as_text(row['estimate'], spec)} [{as_text(row['ci_low'], spec)}, {as_text(row['ci_high'], spec)}]"
 
 
 def _label(row: Mapping) -> str:
@@ -114,9 +115,9 @@ def claims(comparison: pd.DataFrame, policy: pd.DataFrame, versus: str) -> list[
         low, high = row["difference_ci_low"], row["difference_ci_high"]
         spec = "+.3f" if row["metric"] == "f1" else "+.0f"
         evidence = (
-            f"{row['versus']} - {_label(row)}: {_fmt(row['difference'], spec)} [{_fmt(low, spec)}, "
-            f"{_fmt(high, spec)}], "
-            f"Holm p {_fmt(row['p_holm'], '.2g')}, {row['n_paired']} paired demonstrations"
+            f"{row['versus']} - {_label(row)}: {as_text(row['difference'], spec)} [{as_text(low, spec)}, "
+            f"{as_text(high, spec)}], "
+            f"Holm p {as_text(row['p_holm'], '.2g')}, {row['n_paired']} paired demonstrations"
         )
         if low is None or high is None or np.isnan(low) or np.isnan(high):
             verdict = "not measured"
@@ -205,8 +206,8 @@ def _score_sections(comparison: pd.DataFrame) -> list[Section]:
                 if overall is not None and overall["versus"] is not None and overall["n_paired"]:
                     d_spec = "+.3f" if metric == "f1" else "+.0f"
                     line.append(
-                        f"{_fmt(overall['difference'], d_spec)} [{_fmt(overall['difference_ci_low'], d_spec)}, "
-                        f"{_fmt(overall['difference_ci_high'], d_spec)}], p_Holm {_fmt(overall['p_holm'], '.2g')}"
+                        f"{as_text(overall['difference'], d_spec)} [{as_text(overall['difference_ci_low'], d_spec)}, "
+                        f"{as_text(overall['difference_ci_high'], d_spec)}], p_Holm {as_text(overall['p_holm'], '.2g')}"
                     )
                 else:
                     line.append("")
@@ -255,9 +256,9 @@ def _user_study_section(user_study: pd.DataFrame) -> Section | None:
         [
             r["ratings_file"] + (" (SYNTHETIC)" if r["synthetic"] else ""),
             r["question"],
-            f"{_fmt(r['median_visual_feedback'], '.1f')} / {_fmt(r['median_touch2robot'], '.1f')}",
-            _fmt(r["p"], ".3g"),
-            _fmt(r["p_holm"], ".3g"),
+            f"{as_text(r['median_visual_feedback'], '.1f')} / {as_text(r['median_touch2robot'], '.1f')}",
+            as_text(r["p"], ".3g"),
+            as_text(r["p_holm"], ".3g"),
         ]
         for r in user_study.sort_values(["ratings_file", "question"]).to_dict("records")
     ]
