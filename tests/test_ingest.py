@@ -9,9 +9,10 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
+from mcap.writer import Writer
 
 from schemas.glove import GLOVE_JOINT_NAMES
-from schemas.messages import GLOVE_TOPICS
+from schemas.messages import GLOVE_TOPICS, METADATA_NAME, MSG_DEFINITIONS, SCHEMA_VERSION
 from touch2robot import lake as lake_io
 from touch2robot.ingest import ingest_file, link_replays, recording_rows, superseded_ids
 from touch2robot.recording import cdr
@@ -74,10 +75,9 @@ def _rewrite(
 ) -> None:
     """A small glove session written from scratch with one defect injected."""
     meta = {"task": "pick", "subject": "s09"} if metadata is None else metadata
-    with RecordingWriter(path, "glove_session", meta) as w:
-        if schema_name:  # register the taxel topic under a wrong schema name
-            sid = w._writer.register_schema(name=schema_name, encoding="ros2msg", data=b"float32[] values\n")
-            w._channels["/glove/taxels"] = w._writer.register_channel("/glove/taxels", "cdr", sid)
+    # a wrong schema comes from another recorder (ours cannot write one): mcap's own writer
+    opened = _OtherRecorder(path, meta, schema_name) if schema_name else RecordingWriter(path, "glove_session", meta)
+    with opened as w:
         for i in range(20):
             s = 1_000_000_000 + i * 10_000_000
             values = np.full(256, 100.0)
@@ -91,6 +91,33 @@ def _rewrite(
             w.write("/glove/keypoints", s, cdr.encode_pose_array(s, "world", np.zeros((21, 3))))
             w.write("/glove/wrist_pose", s, cdr.encode_pose_stamped(s, "world", np.zeros(3), np.array([1.0, 0, 0, 0])))
             w.write("/object/pose", s, cdr.encode_pose_stamped(s, "box", np.zeros(3), np.array([1.0, 0, 0, 0])))
+
+
+class _OtherRecorder:
+    """A glove session written with mcap's ``Writer``, the taxel topic registered under ``taxel_schema``."""
+
+    def __init__(self, path: Path, metadata: dict[str, str], taxel_schema: str) -> None:
+        self.path, self.taxel_schema = path, taxel_schema
+        self.metadata = {"kind": "glove_session", "schema_version": SCHEMA_VERSION, **metadata}
+
+    def __enter__(self) -> _OtherRecorder:
+        self.file = open(self.path, "wb")
+        self.writer = Writer(self.file)
+        self.writer.start(profile="ros2")
+        self.channels = {}
+        for topic in GLOVE_TOPICS:
+            name = self.taxel_schema if topic.name == "/glove/taxels" else topic.msg_type
+            schema = self.writer.register_schema(name, "ros2msg", MSG_DEFINITIONS[topic.msg_type].encode())
+            self.channels[topic.name] = self.writer.register_channel(topic.name, "cdr", schema)
+        return self
+
+    def write(self, topic: str, stamp_ns: int, data: bytes) -> None:
+        self.writer.add_message(self.channels[topic], log_time=stamp_ns, data=data, publish_time=stamp_ns)
+
+    def __exit__(self, *exc: object) -> None:
+        self.writer.add_metadata(METADATA_NAME, self.metadata)
+        self.writer.finish()
+        self.file.close()
 
 
 def _nan(i, values, stamp):

@@ -2,12 +2,17 @@
 
 from __future__ import annotations
 
+import struct
+import zlib
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+import zstandard
 from mcap.reader import make_reader
+from mcap.records import Chunk, DataEnd, Footer, MessageIndex
+from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 
 from schemas.glove import GLOVE_JOINT_NAMES
@@ -120,3 +125,73 @@ def test_writer_leaves_no_file_on_error(tmp_path: Path) -> None:
         w.write("/glove/hand_joints", 1, cdr.encode_joint_state(1, "glove", GLOVE_JOINT_NAMES, np.zeros(20)))
         raise RuntimeError("recorder crashed")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_batch_reads_back_whole_through_every_index(tmp_path: Path) -> None:
+    """``write_batch`` builds message records itself: mcap's readers (in file and in log-time order, CRCs
+    checked), rosbags and the file's own message indexes and summary must all agree with what was written."""
+    from rosbags.highlevel import AnyReader
+
+    rng = np.random.default_rng(1)
+    n = 700  # in batches of 100, several chunks at the small chunk size below
+    stamps = 10**9 + np.sort(rng.integers(0, 10**9, n))
+    tactile = rng.normal(size=(n, 16))
+    rows = np.stack(
+        [
+            np.frombuffer(cdr.encode_tactile(int(s), "twintac", v), np.uint8)
+            for s, v in zip(stamps, tactile, strict=True)
+        ]
+    )
+    reference = np.frombuffer(cdr.encode_reference_time(10**9, "leap", 0.25), np.uint8)[None]
+    path = tmp_path / "replay.mcap"
+    meta = {"task": "pick", "subject": "s01", "method": "touch2robot"}
+    meta |= {"reference_recording": "g.mcap", "calibration_recording": "c.mcap"}
+    with RecordingWriter(path, "robot_replay", meta, chunk_size=4096) as w:
+        w.write("/leap/joint_states", 5, cdr.encode_joint_state(5, "leap", LEAP_JOINT_NAMES, np.zeros(16)))
+        for lo in range(0, n, 100):
+            order = np.stack([np.zeros(100, int), np.arange(100)], 1)
+            w.write_batch([("/twintac/raw", stamps[lo : lo + 100], rows[lo : lo + 100])], order)
+        # a message earlier than those before it, after them in the file
+        w.write_batch([("/replay/reference_time", np.array([10**9]), reference)], np.array([[0, 0]]))
+    expected = [("/leap/joint_states", 5), *(("/twintac/raw", int(s)) for s in stamps)]
+    expected.append(("/replay/reference_time", 10**9))
+
+    with open(path, "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        in_file = [(c.topic, m.log_time) for _, c, m in reader.iter_messages(log_time_order=False)]
+        by_time = [(c.topic, m.log_time) for _, c, m in reader.iter_messages(log_time_order=True)]
+        summary = reader.get_summary()
+    assert summary is not None and summary.statistics is not None
+    statistics = summary.statistics
+    assert in_file == expected
+    assert by_time == sorted(expected, key=lambda e: e[1])
+    assert statistics.message_count == n + 2 and statistics.chunk_count > 3
+    assert (statistics.message_start_time, statistics.message_end_time) == (5, max(e[1] for e in expected))
+
+    decoded: list[tuple[int, Any]] = []
+    with AnyReader([path]) as bag:
+        for connection, timestamp, raw in bag.messages():
+            if connection.topic == "/twintac/raw":
+                decoded.append((timestamp, bag.deserialize(raw, connection.msgtype)))
+    assert [t for t, _ in decoded] == stamps.tolist()
+    np.testing.assert_array_equal([m.values for _, m in decoded], tactile.astype(np.float32))
+
+    # every message index entry points at a message of its channel with that log time; both CRCs hold
+    with open(path, "rb") as f:
+        records = list(StreamReader(f, emit_chunks=True, validate_crcs=True).records)
+    assert next(r for r in records if isinstance(r, DataEnd)).data_section_crc
+    indexed, data = 0, b""
+    for record in records:
+        if isinstance(record, Chunk):
+            data = zstandard.ZstdDecompressor().decompress(record.data, max_output_size=record.uncompressed_size)
+            assert zlib.crc32(data) == record.uncompressed_crc
+        elif isinstance(record, MessageIndex):
+            for log_time, offset in record.records:
+                opcode, _, channel, _, stamp = struct.unpack_from("<BQHIQ", data, offset)
+                assert (opcode, channel, stamp) == (0x05, record.channel_id, log_time)
+                indexed += 1
+    assert indexed == n + 2
+    footer = next(r for r in records if isinstance(r, Footer))
+    raw = path.read_bytes()
+    footer_at = len(raw) - 8 - (1 + 8 + 20)  # magic after it; opcode, length, two offsets and the CRC
+    assert zlib.crc32(raw[footer.summary_start : footer_at + 1 + 8 + 16]) == footer.summary_crc

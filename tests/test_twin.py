@@ -243,17 +243,17 @@ def test_batch_encoding_is_byte_identical_to_the_message_encoders():
     rng = np.random.default_rng(0)
     stamps = 1_767_225_600 * 10**9 + np.cumsum(rng.integers(1, 10**9, 5))
     values, position = rng.normal(size=(5, 16)), rng.normal(size=(5, 16, 3))
-    assert streams.encode_tactile(stamps, "twintac", values) == [
+    assert [row.tobytes() for row in streams.encode_tactile(stamps, "twintac", values)] == [
         cdr.encode_tactile(int(s), "twintac", v) for s, v in zip(stamps, values, strict=True)
     ]
-    assert streams.encode_reference_time(stamps, "leap", values[:, 0]) == [
+    assert [row.tobytes() for row in streams.encode_reference_time(stamps, "leap", values[:, 0])] == [
         cdr.encode_reference_time(int(s), "leap", float(v)) for s, v in zip(stamps, values[:, 0], strict=True)
     ]
     p, v, e = position[..., 0], position[..., 1], position[..., 2]
-    assert streams.encode_joint_state(stamps, "leap", LEAP_JOINT_NAMES, p, v, e) == [
+    assert [row.tobytes() for row in streams.encode_joint_state(stamps, "leap", LEAP_JOINT_NAMES, p, v, e)] == [
         cdr.encode_joint_state(int(s), "leap", LEAP_JOINT_NAMES, *x) for s, *x in zip(stamps, p, v, e, strict=True)
     ]
-    assert streams.encode_joint_state(stamps, "leap", LEAP_JOINT_NAMES, p) == [
+    assert [row.tobytes() for row in streams.encode_joint_state(stamps, "leap", LEAP_JOINT_NAMES, p)] == [
         cdr.encode_joint_state(int(s), "leap", LEAP_JOINT_NAMES, x) for s, x in zip(stamps, p, strict=True)
     ]
 

@@ -45,6 +45,7 @@ from touch2robot.twin.sensors import PalmFsr, TwinTac, sensor_summary
 
 CLOCK_SPAN_S = 10**7  # replays' clocks are spread over ~4 months after the epoch
 CHUNK_S = 0.5  # physics handed to the writer in pieces of this length
+TAIL_S = 0.05  # the last piece
 COMMAND_JITTER_S = 0.001  # the command loop's scheduling jitter
 COMMAND_START_S = (0.02, 0.05)  # the first command leaves this long after the recording starts
 CALIBRATION_GAP_S = (2.0, 30.0)  # the calibration ends this long before the replay starts
@@ -101,7 +102,8 @@ def _commands(rollout: pa.Table) -> _Commands:
     """The rows of one rollout as a reset state and commands, sorted by step; ValueError names what is wrong."""
     if rollout.num_rows == 0:
         raise ValueError("the rollout table is empty: no trajectory to replay")
-    missing = [c for c in ("rollout_id", "task", *_WIDTHS, *_SCALARS) if c not in rollout.column_names]
+    names = set(rollout.column_names)  # (the property builds a new list at every use)
+    missing = [c for c in ("rollout_id", "task", *_WIDTHS, *_SCALARS) if c not in names]
     if missing:
         raise ValueError(f"the rollout table lacks column(s) {', '.join(missing)}")
     for name in ("rollout_id", "task"):
@@ -111,8 +113,10 @@ def _commands(rollout: pa.Table) -> _Commands:
     task = str(rollout["task"][0].as_py())
     if task not in scenes.TASKS:
         raise ValueError(f"rollout of unknown task {task!r}; the tasks are {', '.join(scenes.TASKS)}")
-    order = np.argsort(rollout["step"].to_numpy(), kind="stable")
-    rows = rollout.take(pa.array(order))
+    rows = rollout.select([*_WIDTHS, *_SCALARS])
+    step = rows["step"].to_numpy()
+    if np.any(np.diff(step) < 0):  # a rollout's rows are stored in step order: sort only what is not
+        rows = rows.take(pa.array(np.argsort(step, kind="stable")))
     cols = {name: _matrix(rows, name, width) for name, width in _WIDTHS.items()}
     wrist = cols["wrist_pose"].copy()
     wrist[:, 3:] /= np.linalg.norm(wrist[:, 3:], axis=1, keepdims=True)
@@ -199,8 +203,10 @@ class _Physics:
         self.states = np.empty((n + 1, len(state)))
         self.states[0] = state
         self.sensordata = np.empty((n, model.nsensordata))
-        chunk = max(1, round(CHUNK_S / model.opt.timestep))
-        self.bounds = [(lo, min(lo + chunk, n)) for lo in range(0, n, chunk)]
+        chunk, tail = (max(1, round(length / model.opt.timestep)) for length in (CHUNK_S, TAIL_S))
+        # the messages of the last chunk are written after all physics is done: a short one shortens that wait
+        cut = max(0, n - tail)
+        self.bounds = [(lo, min(lo + chunk, cut)) for lo in range(0, cut, chunk)] + [(cut, n)]
         self._done: queue.Queue[int | BaseException] = queue.Queue()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"twin-{task}", daemon=True)
@@ -214,12 +220,14 @@ class _Physics:
                     if self._stop.is_set():
                         return
                     try:
+                        # shapes and types are right by construction: the wrapper's checks cost 0.2 ms a chunk
                         pool.rollout(
-                            self.model,
-                            self.data,
+                            [self.model],
+                            [self.data],
                             self.states[lo : lo + 1],
                             self.control[None, lo:hi],
                             control_spec=CONTROL_SPEC,
+                            skip_checks=True,
                             nstep=hi - lo,
                             initial_warmstart=warmstart,
                             state=self.states[None, lo + 1 : hi + 1],
@@ -299,10 +307,14 @@ class TwinPhysics:
 def twin_physics(rollout: pa.Table, sim: SimConfig, twin: TwinConfig, seed: int | Sequence[int]) -> TwinPhysics:
     """Draw the rig of a replay (as ``replay_rollout`` does with the same seed) and lay out its physics:
     the commands, then ``twin.hold_s`` holding the last, all delayed by the rig's latency."""
+    return _twin_physics(rollout, sim, twin, _seeds(seed)[0])
+
+
+def _twin_physics(rollout: pa.Table, sim: SimConfig, twin: TwinConfig, rig_rng: np.random.Generator) -> TwinPhysics:
     cmd = _commands(rollout)
     scene = _nominal_scene(cmd.task, sim)
     data = _thread_data(cmd.task, sim, scene.model)
-    rig = perturb(scene, twin, sim.timestep, _seeds(seed)[0], data)
+    rig = perturb(scene, twin, sim.timestep, rig_rng, data)
     n_steps = len(cmd.joint_target) * sim.substeps + rig.latency_steps + round(twin.hold_s / sim.timestep)
     control = _control(rig.model, cmd, n_steps, sim.substeps, rig.latency_steps)
     return TwinPhysics(cmd, scene, rig, data, _initial_state(scene, rig.model, data, cmd), control)
@@ -322,12 +334,12 @@ def replay_rollout(
     rig) and its unloaded ``robot_calibration`` MCAP (same TwinTac set). Both appear whole, the calibration
     first, or neither does.
     Raises ValueError for rows that are not one rollout of a known task, LostPhysicsError on lost physics."""
-    prepared = twin_physics(rollout, sim, twin, seed)
+    rig_rng, sensor_rng, _, _ = _seeds(seed)
+    prepared = _twin_physics(rollout, sim, twin, rig_rng)
     cmd, scene, rig, model = prepared.commands, prepared.scene, prepared.rig, prepared.rig.model
     # the hardware (rig and sensor set) is the seed's; the session is the recording's own: its clock, jitter
     # and noise differ between two replays on one rig, as recordings made one after another do (two
     # byte-identical calibrations would be one recording to the ingest)
-    sensor_rng = _seeds(seed)[1]
     _, _, stream_rng, clock_rng = _seeds([*_seed_list(seed), zlib.crc32(Path(replay_path).name.encode())])
     twintac, fsr = TwinTac.draw(twin, sensor_rng), PalmFsr.draw(twin, sensor_rng)
     dt = model.opt.timestep
@@ -344,7 +356,7 @@ def replay_rollout(
         with RecordingWriter(calibration_path, RecordingKind.ROBOT_CALIBRATION, calibration_metadata) as calibration:
             _write_calibration(calibration, twintac, calibration_t0, calibration_s, stream_rng)
         try:
-            with RecordingWriter(replay_path, RecordingKind.ROBOT_REPLAY, metadata) as replay:
+            with RecordingWriter(replay_path, RecordingKind.ROBOT_REPLAY, metadata, chunk_size=32768) as replay:
                 region_force = _write_replay(
                     replay, physics, layout, cmd, rig, twintac, fsr, scene, replay_t0, stream_rng
                 )
@@ -372,8 +384,8 @@ def _write_calibration(
     t = clock.stamps(duration, RATE_HZ[TWINTAC], rng)
     raw = twintac.read(np.zeros((len(t), 4)), t, twintac.recording_offset(rng), twintac.white_noise(len(t), rng))
     stamp = clock.to_ns(t0_ns, t)
-    for s, message in zip(stamp.tolist(), streams.encode_tactile(stamp, "twintac", raw), strict=True):
-        writer.write(TWINTAC, s, message)
+    order = np.stack([np.zeros(len(stamp), np.int64), np.arange(len(stamp))], 1)
+    writer.write_batch([(TWINTAC, stamp, streams.encode_tactile(stamp, "twintac", raw))], order)
 
 
 @dataclass(frozen=True)
@@ -432,8 +444,8 @@ def _write_replay(
     stamp = {name: clock.to_ns(t0_ns, t) for name, t in times.items()}
     region_force = np.empty((n_tt, len(scene.region_sensors)))
 
-    def messages(stream: str, lo: int, hi: int) -> list[bytes]:
-        """Encoded messages ``lo:hi`` of a stream (their physics is done)."""
+    def messages(stream: str, lo: int, hi: int) -> np.ndarray:
+        """Encoded messages ``lo:hi`` of a stream (their physics is done), one a row."""
         j = steps[stream][lo:hi]
         s = stamp[stream][lo:hi]
         if stream == TWINTAC:
@@ -453,21 +465,29 @@ def _write_replay(
             return streams.encode_joint_state(s, "leap", LEAP_JOINT_NAMES, q + encoder_noise[lo:hi], qdot, effort)
         return streams.encode_joint_state(s, "leap", LEAP_JOINT_NAMES, cmd.joint_target[sent[lo:hi]])
 
-    written = 0
+    targets = _STREAMS.index(JOINT_TARGETS)
+    reference = len(_STREAMS)  # the reference time, published right after each command
+    written = pieces = 0
     cursor = np.zeros(len(_STREAMS), dtype=np.int64)
     while written < len(layout.order):
+        if pieces == len(physics.bounds) - 1:
+            writer.flush()  # compressed while the last piece of physics runs, not after it
         end = int(np.searchsorted(layout.order_steps, physics.ready(), side="left"))
+        pieces += 1
         chunk = layout.order[written:end]
         upto = cursor + np.bincount(chunk[:, 0], minlength=len(_STREAMS))
-        encoded = [messages(name, int(cursor[i]), int(upto[i])) for i, name in enumerate(_STREAMS)]
-        lo, hi = int(cursor[_STREAMS.index(JOINT_TARGETS)]), int(upto[_STREAMS.index(JOINT_TARGETS)])
-        reference = streams.encode_reference_time(stamp[JOINT_TARGETS][lo:hi], "leap", cmd.t_ref[sent[lo:hi]])
-        for stream_index, sample in chunk.tolist():
-            name = _STREAMS[stream_index]
-            at = sample - int(cursor[stream_index])
-            s = int(stamp[name][sample])
-            writer.write(name, s, encoded[stream_index][at])
-            if name == JOINT_TARGETS:
-                writer.write(REFERENCE_TIME, s, reference[at])
+        batch = [
+            (name, stamp[name][cursor[i] : upto[i]], messages(name, int(cursor[i]), int(upto[i])))
+            for i, name in enumerate(_STREAMS)
+        ]
+        lo, hi = int(cursor[targets]), int(upto[targets])
+        sent_at = stamp[JOINT_TARGETS][lo:hi]
+        batch.append((REFERENCE_TIME, sent_at, streams.encode_reference_time(sent_at, "leap", cmd.t_ref[sent[lo:hi]])))
+        # rows relative to the batch; each command's reference time follows it
+        is_command = chunk[:, 0] == targets
+        relative = np.stack([chunk[:, 0], chunk[:, 1] - cursor[chunk[:, 0]]], 1)
+        order = np.repeat(relative, 1 + is_command, axis=0)
+        order[np.cumsum(1 + is_command)[is_command] - 1, 0] = reference
+        writer.write_batch(batch, order)
         cursor, written = upto, end
     return region_force
