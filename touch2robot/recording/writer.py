@@ -6,8 +6,8 @@ summary with schemas, channels, statistics, chunk and metadata indexes and summa
 and summary CRCs), and every record other than a message is mcap's record class. Message records are
 built here instead, with NumPy for a batch (:meth:`RecordingWriter.write_batch`): mcap's ``Writer``
 builds each message in Python, about 7 µs each, which was most of a twin replay's time (8,000 messages
-a replay); a batch of a twin replay's five streams costs about 1.2 µs a message. mcap's and rosbags' readers read the files back
-(tests/test_recording_codec.py).
+a replay); a batch of a twin replay's five streams costs about 1.2 µs a message. mcap's and rosbags'
+readers read the files back (tests/test_recording_codec.py).
 """
 
 from __future__ import annotations
