@@ -30,6 +30,20 @@ console = Console()
 
 DataOpt = Annotated[Path | None, typer.Option("--data", "-d", help="data folder (default $TOUCH2ROBOT_DATA or ./data)")]
 ProfileOpt = Annotated[str, typer.Option("--profile", "-p", help="smoke | local | paper | path/to/profile.yaml")]
+SeedsOpt = Annotated[
+    int | None,
+    typer.Option(
+        "--seeds",
+        min=1,
+        help="run the stochastic stages for seeds 0..N-1 (default the profile's `seeds:` list)",
+        show_default=False,
+    ),
+]
+
+
+def _seeds(n: int | None) -> list[int] | None:
+    """The sweep of ``--seeds N``: seeds 0 .. N-1 (None: the profile's)."""
+    return None if n is None else list(range(n))
 
 
 @dataclass
@@ -264,6 +278,7 @@ def teachers(
     method: Annotated[
         list[str] | None, typer.Option(help="touch2robot | contrack | dexmachina (repeatable; default all)")
     ] = None,
+    seeds: SeedsOpt = None,
 ) -> None:
     """Train PPO teachers per task x method, record their rollouts and the kinematic replays
     (flow `teachers`); a killed training resumes from its last checkpoint."""
@@ -276,6 +291,7 @@ def teachers(
         data=str(layout.root),
         tasks=task or None,
         methods=method or None,
+        seeds=_seeds(seeds),
     )
     _closing(layout, f"teachers ({profile})", {"teachers": rows})
 
@@ -287,19 +303,28 @@ def student(
     variant: Annotated[
         list[str] | None, typer.Option(help="full or an ablation of student.ablations (repeatable; default all)")
     ] = None,
+    seeds: SeedsOpt = None,
 ) -> None:
     """Distil the unified student retargeter from the touch2robot teachers' rollouts (augmented
     dataset, full model and ablations), then reconstruct the held-out demonstrations (flow
     `student`); a killed training resumes from its last checkpoint."""
     _check_profile(profile)
     layout = _layout(data)
-    result = _run_flow("flows.student:student", dict, profile=profile, data=str(layout.root), variants=variant or None)
+    result = _run_flow(
+        "flows.student:student",
+        dict,
+        profile=profile,
+        data=str(layout.root),
+        variants=variant or None,
+        seeds=_seeds(seeds),
+    )
     table = Table(
-        "variant", "task", "joint error (rad)", "kinematic input (rad)", "contact F1", "predicted F1", "success"
+        "variant", "seed", "task", "joint error (rad)", "kinematic input (rad)", "contact F1", "predicted F1", "success"
     )
     for r in result.get("heldout", []):
         table.add_row(
             r["variant"],
+            str(r["seed"]),
             r["task"],
             f"{r['joint_error_student']:.4f}",
             f"{r['joint_error_kinematic']:.4f}",
@@ -321,6 +346,7 @@ def replay(
         list[str] | None,
         typer.Option(help="touch2robot | contrack | dexmachina | dex-retargeting (repeatable; default all)"),
     ] = None,
+    seeds: SeedsOpt = None,
 ) -> None:
     """Execute each method's robot trajectories open loop on the hardware twin (a perturbed MuJoCo rig
     with TwinTac and FSR models), write robot replay MCAPs next to their glove sessions and ingest
@@ -328,7 +354,13 @@ def replay(
     _check_profile(profile)
     layout = _layout(data)
     result = _run_flow(
-        "flows.replay:replay", dict, profile=profile, data=str(layout.root), tasks=task or None, methods=method or None
+        "flows.replay:replay",
+        dict,
+        profile=profile,
+        data=str(layout.root),
+        tasks=task or None,
+        methods=method or None,
+        seeds=_seeds(seeds),
     )
     _closing(layout, f"replay ({profile})", {"replay": result})
 
@@ -341,6 +373,7 @@ def evaluate(
         Path | None,
         typer.Option(help="user-study ratings CSV or folder (default <data>/recordings/user_study)", exists=True),
     ] = None,
+    seeds: SeedsOpt = None,
 ) -> None:
     """Score every contact source against the human preference (precision/recall/F1/FPR,
     onset error), every replayed trajectory against its replay (tactile fidelity), compare the
@@ -354,17 +387,18 @@ def evaluate(
         profile=profile,
         data=str(layout.root),
         ratings=str(ratings.resolve()) if ratings else None,
+        seeds=_seeds(seeds),
     )
     _closing(layout, f"evaluate ({profile})", {"evaluate": result})
 
 
 @app.command()
-def report(profile: ProfileOpt = "smoke", data: DataOpt = None) -> None:
+def report(profile: ProfileOpt = "smoke", data: DataOpt = None, seeds: SeedsOpt = None) -> None:
     """The run's report from the catalog: report.html (self-contained, figures embedded) and report.md
     under <data>/reports/, the paper's claims stated from the intervals, an artefact and an MLflow run."""
     _check_profile(profile)
     layout = _layout(data)
-    result = _run_flow("flows.report:report", dict, profile=profile, data=str(layout.root))
+    result = _run_flow("flows.report:report", dict, profile=profile, data=str(layout.root), seeds=_seeds(seeds))
     _closing(layout, f"report ({profile})", {"report": result})
 
 
@@ -378,17 +412,25 @@ def policy(
     method: Annotated[
         list[str] | None, typer.Option(help="data-collection method (repeatable; default the profile's policy.methods)")
     ] = None,
+    seeds: SeedsOpt = None,
 ) -> None:
     """Robot demonstrations as LeRobot datasets, LeRobot's Diffusion Policy trained on them and
     its closed-loop success, per task x method with rollouts in the lake (table policy_eval)."""
     _check_profile(profile)
     layout = _layout(data)
     rows = _run_flow(
-        "flows.policy:policy", list, profile=profile, data=str(layout.root), tasks=task or None, methods=method or None
+        "flows.policy:policy",
+        list,
+        profile=profile,
+        data=str(layout.root),
+        tasks=task or None,
+        methods=method or None,
+        seeds=_seeds(seeds),
     )
     table = Table(
         "task",
         "method",
+        "seed",
         "origin",
         "success",
         "95% CI",
@@ -401,6 +443,7 @@ def policy(
         table.add_row(
             r["task"],
             r["method"],
+            str(r["seed"]),
             r["origin"],
             f"{r['successes']}/{r['episodes']}",
             f"[{r['ci_low']:.2f}, {r['ci_high']:.2f}]",
@@ -419,11 +462,19 @@ def run(
     synthesize: Annotated[
         bool, typer.Option("--synth/--no-synth", help="generate demonstrator recordings first")
     ] = True,
+    seeds: SeedsOpt = None,
 ) -> None:
     """Run every stage that exists, as one Prefect flow (`pipeline`), on a profile."""
     _check_profile(profile)
     layout = _layout(data)
-    result = _run_flow("flows.pipeline:pipeline", dict, profile=profile, data=str(layout.root), synthesize=synthesize)
+    result = _run_flow(
+        "flows.pipeline:pipeline",
+        dict,
+        profile=profile,
+        data=str(layout.root),
+        synthesize=synthesize,
+        seeds=_seeds(seeds),
+    )
     _closing(layout, f"pipeline ({profile})", result)
 
 

@@ -5,8 +5,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pandas as pd
 from prefect import flow, unmapped
 
+from schemas.tables import SCHEMAS
 from tasks import tracking
 from tasks.common import stored
 from tasks.evaluate import (
@@ -28,6 +30,7 @@ from touch2robot.evaluate import (
     FIDELITY_REFERENCE,
     REFERENCE_SOURCE,
     evaluated_sources,
+    pool_seeds,
     ratings_files,
     source_folders,
 )
@@ -37,15 +40,21 @@ from touch2robot.settings import DataLayout
 
 @flow(name="evaluate", task_runner=ProfileTaskRunner(), log_prints=True)
 def evaluate(
-    profile: str = "smoke", data: str | None = None, ratings: str | None = None, reference: str = REFERENCE_SOURCE
+    profile: str = "smoke",
+    data: str | None = None,
+    ratings: str | None = None,
+    reference: str = REFERENCE_SOURCE,
+    seeds: list[int] | None = None,
 ) -> dict:
     """Score every contact source in the lake other than ``reference`` (all its methods and tasks:
     preference alignment), every replayed trajectory's contacts against those measured on its replay
     (tactile fidelity, reference ``real``), and the user-study ratings (``ratings``: a CSV or a folder of them, default
     ``<data>/recordings/user_study``); rewrite the evaluation tables, refresh the catalog, log
-    MLflow runs. ``profile`` labels the runs."""
+    MLflow runs. ``profile`` labels the runs; every sweep seed in the lake is scored, and the comparison
+    reports a cell's missing seeds against ``seeds`` (default the profile's)."""
     layout = DataLayout.from_env(data)
     config = load_profile(profile)
+    sweep = config.sweep(seeds)
     lake = str(layout.lake)
     sources = evaluated_sources(layout.lake, reference)
     digests = [folder_digest(source_folders(layout.lake, s, reference)) for s in sources]
@@ -68,7 +77,7 @@ def evaluate(
     onsets = [r for s in per_source for r in s["onset_errors"]]
     ablations = stored(evaluate_ablations, layout.results)(lake, folder_digest([STUDENT_VARIANTS.folder(layout.lake)]))
     clusters = [r for s in per_source for r in s["clusters"]] + ablations
-    comparison = stored(compare_methods, layout.results)(clusters, config.comparison)
+    comparison = stored(compare_methods, layout.results)(clusters, config.comparison, list(sweep))
     store_table(lake, "contact_metrics", metrics)
     store_table(lake, "onset_errors", onsets)
     store_table(lake, "comparison", comparison)
@@ -89,9 +98,13 @@ def evaluate(
                 str(layout.root), profile, path, sha, study["rows"], uri
             )
     publish_artefacts(profile, metrics, summaries, studies, runs)
-    overall = {
+    pooled, _ = pool_seeds(
+        pd.DataFrame(metrics, columns=SCHEMAS["contact_metrics"].names),
+        pd.DataFrame(onsets, columns=SCHEMAS["onset_errors"].names),
+    )
+    overall = {  # over the sweep's seeds
         ("" if r["reference_source"] == reference else "fidelity:") + f"{r['source']}/{r['method']}": r["f1"]
-        for r in metrics
+        for r in pooled.to_dict("records")
         if r["task"] == ALL and r["region"] == ALL
     }
     print(

@@ -16,26 +16,31 @@ from flows.student import student
 from flows.synth import synth
 from flows.teachers import teachers
 from schemas.vocabulary import Origin, Source
+from touch2robot.config import load_profile
 from touch2robot.report import as_text
 
 
 @flow(name="pipeline", log_prints=True)
-def pipeline(profile: str = "smoke", data: str | None = None, synthesize: bool = True) -> dict:
+def pipeline(
+    profile: str = "smoke", data: str | None = None, synthesize: bool = True, seeds: list[int] | None = None
+) -> dict:
     """Simulated demonstrator (unless ``synthesize`` is false: bring your own recordings
     in ``<data>/recordings``) -> ingest and contacts -> kinematic retargeting -> teachers and
     their rollouts -> the distilled student and its reconstructions -> every method's trajectories
     replayed on the hardware twin and ingested -> contact evaluation ->
-    robot-demonstration datasets, Diffusion Policies and their closed-loop success -> the report."""
+    robot-demonstration datasets, Diffusion Policies and their closed-loop success -> the report.
+    The stochastic stages run once per sweep seed (``seeds``, default the profile's)."""
+    load_profile(profile).sweep(seeds)  # a bad profile or seed list fails here, before any compute
     if synthesize:
         synth(profile=profile, data=data)
     ingested = ingest(profile=profile, data=data)
     retargeted = retarget(profile=profile, data=data)
-    taught = teachers(profile=profile, data=data)
-    distilled = student(profile=profile, data=data)
-    replayed = replay(profile=profile, data=data)
-    evaluated = evaluate(profile=profile, data=data)
-    policies = policy(profile=profile, data=data)
-    reported = report(profile=profile, data=data)
+    taught = teachers(profile=profile, data=data, seeds=seeds)
+    distilled = student(profile=profile, data=data, seeds=seeds)
+    replayed = replay(profile=profile, data=data, seeds=seeds)
+    evaluated = evaluate(profile=profile, data=data, seeds=seeds)
+    policies = policy(profile=profile, data=data, seeds=seeds)
+    reported = report(profile=profile, data=data, seeds=seeds)
     return {
         "ingest": ingested,
         "retarget": retargeted,

@@ -20,27 +20,38 @@ from touch2robot.twin.plan import plan_replays
 
 @flow(name="replay", task_runner=ProfileTaskRunner(), log_prints=True)
 def replay(
-    profile: str = "smoke", data: str | None = None, tasks: list[str] | None = None, methods: list[str] | None = None
+    profile: str = "smoke",
+    data: str | None = None,
+    tasks: list[str] | None = None,
+    methods: list[str] | None = None,
+    seeds: list[int] | None = None,
 ) -> dict:
-    """Replay the profile's ``replay`` section (``tasks`` x ``methods``, default all) on the twin of its
-    ``twin`` section, then ingest the recordings so that their measured contacts reach the lake."""
+    """Replay the profile's ``replay`` section (``tasks`` x ``methods``, default all) of every sweep seed
+    (``seeds``, default the profile's) on the twin of its ``twin`` section, then ingest the recordings so
+    that their measured contacts reach the lake."""
     layout = DataLayout.from_env(data)
     settings = load_profile(profile)
-    config = settings.replay
-    config = config.model_copy(
-        update={"tasks": tuple(tasks or config.tasks), "methods": tuple(methods or config.methods)}
-    )
-    jobs, skipped = plan_replays(layout.lake, layout.recordings, config)
-    digests = {path: file_digest(path) for path in sorted({j.rollouts_file for j in jobs})}
     run = stored(replay_on_twin, layout.results)
-    futures = [run.submit(j, digests[j.rollouts_file], settings.teacher.sim, settings.twin, config.seed) for j in jobs]
-    rows = [f.result() for f in futures] + skipped_rows(skipped)
+    jobs, futures, rows = [], [], []
+    for seed in settings.sweep(seeds):
+        config = settings.for_seed(seed).replay
+        config = config.model_copy(
+            update={"tasks": tuple(tasks or config.tasks), "methods": tuple(methods or config.methods)}
+        )
+        seed_jobs, skipped = plan_replays(layout.lake, layout.recordings, config, seed)
+        digests = {path: file_digest(path) for path in sorted({j.rollouts_file for j in seed_jobs})}
+        futures += [
+            run.submit(j, digests[j.rollouts_file], settings.teacher.sim, settings.twin, config.seed) for j in seed_jobs
+        ]
+        jobs += seed_jobs
+        rows += skipped_rows(skipped, seed)
+    rows = [f.result() for f in futures] + rows
     store_replays(str(layout.lake), rows)
     table = report_replays(profile, rows)
     for s in table:
         why = f" ({s['reasons']})" if s["reasons"] else ""
         print(
-            f"replay: {s['task']:7s} {s['method']:16s} {s[REPLAYED]} replayed, {s[SKIPPED]} skipped, "
+            f"replay: {s['task']:7s} {s['method']:16s} seed {s['seed']} {s[REPLAYED]} replayed, {s[SKIPPED]} skipped, "
             f"{s[FAILED]} failed{why}"
         )
     # the data folder's recordings, and any other folder a glove session was ingested from (`ingest --folder`):

@@ -7,14 +7,17 @@ from prefect import flow
 
 from tasks.ingest import refresh_catalog
 from tasks.report import build_report
+from touch2robot.config import load_profile
 from touch2robot.settings import DataLayout
 
 
 @flow(name="report", log_prints=True)
-def report(profile: str = "smoke", data: str | None = None) -> dict:
-    """Refresh the catalog and write the report of what it holds; ``profile`` names the run's settings."""
+def report(profile: str = "smoke", data: str | None = None, seeds: list[int] | None = None) -> dict:
+    """Refresh the catalog and write the report of what it holds; ``profile`` names the run's settings and
+    ``seeds`` (default the profile's) the sweep it reports, a figure lacking one of them saying so."""
     layout = DataLayout.from_env(data)
+    load_profile(profile).sweep(seeds)  # bad seeds fail here, before the catalog is touched
     refresh_catalog(str(layout.root))
-    written = build_report(str(layout.root), profile)
+    written = build_report(str(layout.root), profile, seeds)
     print(f"report: {written['html']}")
     return written

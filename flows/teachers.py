@@ -17,13 +17,20 @@ from touch2robot.settings import DataLayout
 
 @flow(name="teachers", task_runner=ProfileTaskRunner(section="training_runner"), log_prints=True)
 def teachers(
-    profile: str = "smoke", data: str | None = None, tasks: list[str] | None = None, methods: list[str] | None = None
+    profile: str = "smoke",
+    data: str | None = None,
+    tasks: list[str] | None = None,
+    methods: list[str] | None = None,
+    seeds: list[int] | None = None,
 ) -> list[dict]:
     """Train the profile's teachers (``tasks`` x ``methods``, default the profile's ``teacher``
-    section) on every retargeted glove demonstration of each task, record their rollouts and
-    the kinematic baseline's, refresh the catalog and report success and contact F1."""
+    section) on every retargeted glove demonstration of each task, once per sweep seed (``seeds``,
+    default the profile's), record their rollouts and the kinematic baseline's, refresh the catalog
+    and report success and contact F1."""
     layout = DataLayout.from_env(data)
-    config = load_profile(profile).teacher
+    settings = load_profile(profile)
+    sweep = settings.sweep(seeds)
+    config = settings.teacher
     config = config.model_copy(
         update={"tasks": tuple(tasks or config.tasks), "methods": tuple(methods or config.methods)}
     )
@@ -37,20 +44,24 @@ def teachers(
         print(f"teachers: no retargeted demonstrations for {missing}: run the ingest and retarget flows first")
     root = str(layout.root)
     trained, replays = [], []
-    for task_name, recs in demos.items():
-        digest = datasets.references_digest(layout.lake, recs)
-        replays.append(
-            stored(kinematic_rollouts, layout.results).submit(task_name, config, recs, digest, root, profile)
-        )
-        for method in config.methods:
-            run = stored(train_teacher, layout.results).submit(task_name, method, config, recs, digest, root, profile)
-            trained.append(stored(teacher_rollouts, layout.results).submit(run, config, recs, digest, root))
+    for seed in sweep:
+        seeded = config.model_copy(update={"seed": settings.for_seed(seed).teacher.seed})
+        for task_name, recs in demos.items():
+            digest = datasets.references_digest(layout.lake, recs)
+            replays.append(
+                stored(kinematic_rollouts, layout.results).submit(task_name, seed, seeded, recs, digest, root, profile)
+            )
+            for method in config.methods:
+                run = stored(train_teacher, layout.results).submit(
+                    task_name, method, seed, seeded, recs, digest, root, profile
+                )
+                trained.append(stored(teacher_rollouts, layout.results).submit(run, seeded, recs, digest, root))
     results = [f.result() for f in replays + trained]
     refresh_catalog(root)
     table = report_teachers(profile, results)
     for r in table:
         print(
-            f"teachers: {r['task']:7s} {r['method']:16s} success {r['success_rate']:.2f}  contact F1 "
-            f"{r['contact_f1']:.3f}"
+            f"teachers: {r['task']:7s} {r['method']:16s} seed {r['seed']} success {r['success_rate']:.2f}  "
+            f"contact F1 {r['contact_f1']:.3f}"
         )
     return table

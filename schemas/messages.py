@@ -124,9 +124,10 @@ METADATA_KEYS: dict[str, tuple[str, ...]] = {
     "robot_calibration": ("kind", "schema_version"),
 }
 # Metadata keys a recording may carry. A replay's ``trajectory`` names the robot trajectory it executed (a
-# ``rollouts`` rollout_id): tactile fidelity scores that trajectory's contacts against the ones measured here.
+# ``rollouts`` rollout_id) and ``seed`` the sweep seed of the rollouts it is one of (default: none, read as 0):
+# tactile fidelity scores that trajectory's contacts against the ones measured here.
 OPTIONAL_METADATA_KEYS: dict[str, tuple[str, ...]] = {
     "glove_session": (),
-    "robot_replay": ("trajectory",),
+    "robot_replay": ("trajectory", "seed"),
     "robot_calibration": (),
 }

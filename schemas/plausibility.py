@@ -54,3 +54,4 @@ MAX_STREAM_START_SPREAD_S = 60.0
 # Metadata values become table values and name files: short, printable, no path syntax.
 NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 FILE_NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,254}")
+SEED_PATTERN = re.compile(r"0|[1-9][0-9]{0,8}")  # a sweep seed (replay metadata)

@@ -61,6 +61,7 @@ recordings = pa.schema(
         pa.field("task", pa.string()),
         pa.field("subject", pa.string()),
         pa.field("method", pa.string()),
+        pa.field("seed", pa.int64()),
         pa.field("reference_recording", pa.string()),
         pa.field("calibration_recording", pa.string()),
         pa.field("trajectory", pa.string()),
@@ -84,6 +85,7 @@ recordings_doc = TableDoc(
         "task": "pick | rotate | wipe | drawer (metadata; empty where not applicable, NULL if unreadable)",
         "subject": "the demonstrating person",
         "method": "replay: the retargeting method whose commands the robot replayed",
+        "seed": "replay: the sweep seed of the trajectory it executed (NULL: none named)",
         "reference_recording": "replay: file name of the glove session it replays",
         "calibration_recording": "replay: file name of its TwinTac calibration",
         "trajectory": "replay: the robot trajectory executed (a rollouts rollout_id); NULL when the rig does not say",
@@ -206,6 +208,7 @@ contacts = pa.schema(
     [
         pa.field("source", pa.string(), nullable=False),
         pa.field("method", pa.string(), nullable=False),
+        pa.field("seed", pa.int64()),
         pa.field("task", pa.string(), nullable=False),
         pa.field("subject", pa.string(), nullable=False),
         pa.field("sequence_id", pa.string(), nullable=False),
@@ -222,6 +225,7 @@ contacts_doc = TableDoc(
     {
         "source": "human | sim | real | reconstructed",
         "method": '"human" for the glove; else the retargeting method',
+        "seed": "the sweep seed that produced the row (profile seeds); NULL for the glove (human)",
         "task": "pick | rotate | wipe | drawer",
         "subject": "the demonstrating person",
         "sequence_id": "recording id or rollout id",
@@ -265,6 +269,7 @@ contact_metrics = pa.schema(
     [
         pa.field("source", pa.string(), nullable=False),
         pa.field("method", pa.string(), nullable=False),
+        pa.field("seed", pa.int64(), nullable=False),
         pa.field("task", pa.string(), nullable=False),
         pa.field("region", pa.string(), nullable=False),
         pa.field("reference_source", pa.string(), nullable=False),
@@ -285,6 +290,7 @@ contact_metrics_doc = TableDoc(
     {
         "source": "the evaluated source (sim | real | reconstructed)",
         "method": "the retargeting method",
+        "seed": "the sweep seed of the evaluated trajectories",
         "task": "the task, or '*' for all",
         "region": "one of ROBOT_REGIONS, or '*' for all",
         "reference_source": 'what it is scored against ("human")',
@@ -305,6 +311,7 @@ onset_errors = pa.schema(
     [
         pa.field("source", pa.string(), nullable=False),
         pa.field("method", pa.string(), nullable=False),
+        pa.field("seed", pa.int64(), nullable=False),
         pa.field("task", pa.string(), nullable=False),
         pa.field("sequence_id", pa.string(), nullable=False),
         pa.field("region", pa.string(), nullable=False),
@@ -328,6 +335,7 @@ onset_errors_doc = TableDoc(
     {
         "source": "the evaluated source (sim | real | reconstructed)",
         "method": "the retargeting method",
+        "seed": "the sweep seed of the evaluated trajectories",
         "task": "the task, or '*' for all",
         "sequence_id": "the evaluated sequence; '*' on summary rows",
         "region": "one of ROBOT_REGIONS, or '*' for all",
@@ -363,6 +371,8 @@ comparison = pa.schema(
         pa.field("ci_low", pa.float64()),
         pa.field("ci_high", pa.float64()),
         pa.field("n_demonstrations", pa.int64(), nullable=False),
+        pa.field("seeds", pa.string(), nullable=False),
+        pa.field("seeds_missing", pa.string(), nullable=False),
         pa.field("versus", pa.string()),
         pa.field("difference", pa.float64()),
         pa.field("difference_ci_low", pa.float64()),
@@ -388,6 +398,8 @@ comparison_doc = TableDoc(
         "ci_low": "lower bound of the percentile interval of a cluster bootstrap over demonstrations",
         "ci_high": "upper bound of that interval",
         "n_demonstrations": "demonstrations scored",
+        "seeds": "the sweep seeds pooled into the row (comma-separated)",
+        "seeds_missing": "the profile's seeds with no results for the row ('' when none is missing)",
         "versus": "the method it is compared with (an ablation: the full model); NULL on that method's own rows",
         "difference": "score(versus) - score(method) on the demonstrations both were scored on",
         "difference_ci_low": "lower bound of the paired cluster-bootstrap interval of the difference",
@@ -485,13 +497,14 @@ retargeted_doc = TableDoc(
 # state, so replaying the commands from it in the same scene reproduces the rollout: reset with
 # hand qpos = joint_position, servo targets = joint_position, wrist body and mocap = wrist_state,
 # object = object_pose (drawer: drawer_opening)
-# (touch2robot.teachers.rollouts.reset_to_rows). Files: lake/rollouts/method=<m>/<origin>-<task>.parquet
+# (touch2robot.teachers.rollouts.reset_to_rows). Files: lake/rollouts/method=<m>/<origin>-<task>-seed<seed>.parquet
 
 rollouts = pa.schema(
     [
         pa.field("rollout_id", pa.string(), nullable=False),
         pa.field("origin", pa.string(), nullable=False),
         pa.field("method", pa.string(), nullable=False),
+        pa.field("seed", pa.int64(), nullable=False),
         pa.field("task", pa.string(), nullable=False),
         pa.field("subject", pa.string(), nullable=False),
         pa.field("reference_id", pa.string(), nullable=False),
@@ -517,6 +530,7 @@ rollouts_doc = TableDoc(
         "rollout_id": '"<origin>-<method>-<task>-<index:03d>"',
         "origin": "teacher | kinematic | student (schemas.vocabulary.Origin)",
         "method": "touch2robot | contrack | dexmachina | dex-retargeting",
+        "seed": "the sweep seed of the run that recorded them (profile seeds)",
         "task": "pick | rotate | wipe | drawer",
         "subject": "the demonstrating person",
         "reference_id": "the glove recording followed",
@@ -539,11 +553,12 @@ rollouts_doc = TableDoc(
 
 # --- Diffusion Policy evaluation (flow `policy`; one file per method x task) ----------------
 # Closed-loop success of LeRobot's Diffusion Policy trained on one method's robot demonstrations
-# of one task (the paper's downstream test). Files: lake/policy_eval/<method>-<task>.parquet
+# of one task (the paper's downstream test). Files: lake/policy_eval/<method>-<task>-seed<seed>.parquet
 policy_eval = pa.schema(
     [
         pa.field("task", pa.string(), nullable=False),
         pa.field("method", pa.string(), nullable=False),
+        pa.field("seed", pa.int64(), nullable=False),
         pa.field("origin", pa.string(), nullable=False),
         pa.field("profile", pa.string(), nullable=False),
         pa.field("dataset_episodes", pa.int32(), nullable=False),
@@ -573,6 +588,7 @@ policy_eval_doc = TableDoc(
     {
         "task": "pick | rotate | wipe | drawer",
         "method": "whose rollouts the demonstrations are",
+        "seed": "the sweep seed of the rollouts, training and evaluation episodes",
         "origin": "which rollouts: student | teacher | kinematic",
         "profile": "the run profile (smoke | local | paper | a file)",
         "dataset_episodes": "demonstrations trained on",
@@ -603,12 +619,13 @@ policy_eval_doc = TableDoc(
 # teacher's command aimed at that frame and the sim contacts it led to. Training rollouts are
 # the teacher's rollouts once unchanged, then copies with N(0, std^2) added per frame and joint
 # to kinematic_joints and target_joints alike (touch2robot.student.augment).
-# Files: lake/student_dataset/<task>.parquet
+# Files: lake/student_dataset/<task>-seed<seed>.parquet
 student_dataset = pa.schema(
     [
         pa.field("sample_id", pa.string(), nullable=False),
         pa.field("split", pa.string(), nullable=False),
         pa.field("task", pa.string(), nullable=False),
+        pa.field("seed", pa.int64(), nullable=False),
         pa.field("reference_id", pa.string(), nullable=False),
         pa.field("source_rollout_id", pa.string(), nullable=False),
         pa.field("augment", pa.int32(), nullable=False),
@@ -629,6 +646,7 @@ student_dataset_doc = TableDoc(
         "sample_id": '"<split>-<task>-<index:03d>": one student sequence',
         "split": "train | val (validation demonstrations, never trained on)",
         "task": "pick | rotate | wipe | drawer",
+        "seed": "the sweep seed of the teacher rollouts it augments",
         "reference_id": "the glove recording",
         "source_rollout_id": "the teacher rollout it comes from",
         "augment": "0 = the teacher rollout unchanged, k > 0 = its k-th noisy copy",
@@ -647,11 +665,12 @@ student_dataset_doc = TableDoc(
 # The student's predicted contacts beside the reconstructed (executed) ones in `contacts`
 # (source reconstructed): one row per (student rollout, step, region); sequence_id, t and t_ref
 # join them. Predictions cover the whole demonstration, also past an early end of the rollout.
-# Files: lake/student_predictions/<method>-<task>.parquet
+# Files: lake/student_predictions/<method>-<task>-seed<seed>.parquet
 student_predictions = pa.schema(
     [
         pa.field("sequence_id", pa.string(), nullable=False),
         pa.field("method", pa.string(), nullable=False),
+        pa.field("seed", pa.int64(), nullable=False),
         pa.field("task", pa.string(), nullable=False),
         pa.field("reference_id", pa.string(), nullable=False),
         pa.field("variant", pa.string(), nullable=False),
@@ -667,6 +686,7 @@ student_predictions_doc = TableDoc(
     {
         "sequence_id": 'the student rollout ("student-<method>-<task>-<index:03d>")',
         "method": "the retargeting method",
+        "seed": "the sweep seed of the student",
         "task": "pick | rotate | wipe | drawer",
         "reference_id": "the held-out glove recording",
         "variant": 'student variant ("full" or an ablation)',
@@ -680,10 +700,11 @@ student_predictions_doc = TableDoc(
 
 # Every student variant's scores per held-out demonstration (flow `student`; one file per method x variant):
 # the comparison's clusters for the ablations, which are not in `contacts` (the full model's are).
-# Files: lake/student_variants/<method>__<variant>.parquet
+# Files: lake/student_variants/<method>__<variant>__<seed>.parquet
 student_variants = pa.schema(
     [
         pa.field("method", pa.string(), nullable=False),
+        pa.field("seed", pa.int64(), nullable=False),
         pa.field("variant", pa.string(), nullable=False),
         pa.field("task", pa.string(), nullable=False),
         pa.field("demonstration", pa.string(), nullable=False),
@@ -699,6 +720,7 @@ student_variants_doc = TableDoc(
     "each student variant's reconstructed contacts vs the human's, summed per held-out demonstration",
     {
         "method": "the teacher method the student was distilled from",
+        "seed": "the sweep seed of the student",
         "variant": 'student variant ("full" or an ablation)',
         "task": "pick | rotate | wipe | drawer",
         "demonstration": "the held-out glove recording",
@@ -714,11 +736,12 @@ student_variants_doc = TableDoc(
 # --- Replays on the robot (flow `replay`; rewritten whole, one file per task x method) ---------
 # Every trajectory the replay stage was asked to execute on the hardware twin (or a lab's rig), with
 # what it wrote, or why nothing was: a method with no trajectory for a task is a row, not a crash.
-# Files: lake/replays/<task>__<method>.parquet
+# Files: lake/replays/<task>__<method>__<seed>.parquet
 replays = pa.schema(
     [
         pa.field("task", pa.string(), nullable=False),
         pa.field("method", pa.string(), nullable=False),
+        pa.field("seed", pa.int64(), nullable=False),
         pa.field("origin", pa.string()),
         pa.field("trajectory", pa.string()),
         pa.field("reference_id", pa.string()),
@@ -738,6 +761,7 @@ replays_doc = TableDoc(
     {
         "task": "pick | rotate | wipe | drawer",
         "method": "the retargeting method whose trajectory was executed",
+        "seed": "the sweep seed of the trajectory and of the twin's draw",
         "origin": "teacher | kinematic | student: which of the method's rollouts; NULL when skipped",
         "trajectory": "the rollouts rollout_id executed; NULL when skipped",
         "reference_id": "the glove recording the trajectory follows; NULL when skipped",
@@ -812,3 +836,10 @@ PARTITIONS: dict[str, tuple[str, ...]] = {
     "contacts": ("source", "task"),
     "rollouts": ("method",),
 }
+
+
+def unseeded(table: str) -> pa.Schema:
+    """A table's schema without its ``seed`` column: the rows a library function computes. The stage that
+    stores them adds the sweep seed (``touch2robot.datasets.with_seed``)."""
+    schema = SCHEMAS[table]
+    return schema.remove(schema.get_field_index("seed"))

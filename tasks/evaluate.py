@@ -73,14 +73,14 @@ def evaluate_source(lake: str, source: str, reference: str, lake_digest: str) ->
     ``lake_digest`` (:func:`touch2robot.datasets.folder_digest` of the folders it reads: their files'
     content) keys the cache on the data: a path alone would serve stale scores after the lake changed.
     """
-    contacts = ev.read_contacts(Path(lake), [reference, source])
-    metrics = ev.contact_metrics_table(contacts, source, reference)
-    onsets = ev.onset_errors_table(contacts, ev.read_time_map(Path(lake)), source, reference)
-    return {
-        "contact_metrics": _records(metrics, "contact_metrics"),
-        "onset_errors": _records(onsets, "onset_errors"),
-        "clusters": _plain(ev.demonstration_sums(contacts, onsets, source, reference)),
-    }
+    time_map = ev.read_time_map(Path(lake))
+    metrics, onsets, clusters = [], [], []
+    for seed, contacts in ev.per_seed(ev.read_contacts(Path(lake), [reference, source]), reference):
+        scored = ev.onset_errors_table(contacts, time_map, source, reference).assign(seed=seed)
+        metrics += _records(ev.contact_metrics_table(contacts, source, reference).assign(seed=seed), "contact_metrics")
+        onsets += _records(scored, "onset_errors")
+        clusters += _plain(ev.demonstration_sums(contacts, scored, source, reference).assign(seed=seed))
+    return {"contact_metrics": metrics, "onset_errors": onsets, "clusters": clusters}
 
 
 @task(cache_policy=cache_policy(*_LIBRARY, "touch2robot.ingest"), persist_result=True)
@@ -89,15 +89,17 @@ def evaluate_fidelity(lake: str, contact_threshold_n: float, lake_digest: str) -
     contacts the trajectory makes on the simulated target hand scored against those measured on the replay
     (reference ``real``), and the onset error between them on the reference clock. ``lake_digest`` covers
     the recordings, the contacts and the rollouts it reads."""
-    contacts = ev.fidelity_contacts(Path(lake), contact_threshold_n)
     no_time_map = SCHEMAS["time_map"].empty_table().to_pandas()  # both sides carry t_ref already
     demonstration_of = ev.replay_demonstrations(Path(lake))
+    reference = ev.FIDELITY_REFERENCE
     metrics, onsets, sums = [], [], []
-    for source in sorted(set(contacts["source"]) - {ev.FIDELITY_REFERENCE}):
-        scored = ev.onset_errors_table(contacts, no_time_map, source, ev.FIDELITY_REFERENCE)
-        metrics += _records(ev.contact_metrics_table(contacts, source, ev.FIDELITY_REFERENCE), "contact_metrics")
-        onsets += _records(scored, "onset_errors")
-        sums.append(ev.demonstration_sums(contacts, scored, source, ev.FIDELITY_REFERENCE, demonstration_of))
+    for seed, contacts in ev.per_seed(ev.fidelity_contacts(Path(lake), contact_threshold_n), reference):
+        for source in sorted(set(contacts["source"]) - {reference}):
+            scored = ev.onset_errors_table(contacts, no_time_map, source, reference).assign(seed=seed)
+            table = ev.contact_metrics_table(contacts, source, reference).assign(seed=seed)
+            metrics += _records(table, "contact_metrics")
+            onsets += _records(scored, "onset_errors")
+            sums.append(ev.demonstration_sums(contacts, scored, source, reference, demonstration_of).assign(seed=seed))
     clusters = _plain(ev.pooled_as(pd.concat(sums, ignore_index=True), ev.FIDELITY_SOURCE)) if sums else []
     return {"contact_metrics": metrics, "onset_errors": onsets, "clusters": clusters}
 
@@ -109,14 +111,17 @@ def evaluate_ablations(lake: str, lake_digest: str) -> list[dict]:
 
 
 @task(cache_policy=cache_policy(*_LIBRARY, "touch2robot.comparison.statistics"), persist_result=True)
-def compare_methods(clusters: list[dict], config: ComparisonConfig) -> list[dict]:
+def compare_methods(clusters: list[dict], config: ComparisonConfig, seeds: list[int]) -> list[dict]:
     """The ``comparison`` rows: every method's (and student ablation's) scores with cluster-bootstrap intervals
-    over demonstrations, and each one's paired difference and Wilcoxon test against ``config.versus`` (an
-    ablation: against its full model), Holm-adjusted."""
+    over demonstrations (the sweep's ``seeds`` pooled per demonstration; a cell lacking one says so), and each
+    one's paired difference and Wilcoxon test against ``config.versus`` (an ablation: against its full model),
+    Holm-adjusted."""
     from touch2robot.comparison.statistics import comparison_table
 
-    frame = pd.DataFrame.from_records(clusters, columns=[*ev.CLUSTER_TABLE_COLUMNS, "variant"])
-    table = comparison_table(frame, str(config.versus), config.confidence, config.n_resamples, config.seed)
+    frame = pd.DataFrame.from_records(clusters, columns=[*ev.CLUSTER_TABLE_COLUMNS, "variant", "seed"])
+    table = comparison_table(
+        frame, str(config.versus), config.confidence, config.n_resamples, config.seed, tuple(seeds)
+    )
     return _records(table, "comparison")
 
 
@@ -150,8 +155,8 @@ def store_table(lake: str, table: str, records: list[dict]) -> list[str]:
 
 
 def _summary(metrics: pd.DataFrame, onsets: pd.DataFrame) -> pd.DataFrame:
-    """One row per (source, method, task incl. '*'): overall contact scores + onset summary."""
-    keys = ["reference_source", "source", "method", "task"]
+    """One row per (source, method, task incl. '*', seed): overall contact scores + onset summary."""
+    keys = ["reference_source", "source", "method", "task", "seed"]
     m = metrics[metrics["region"] == ALL][
         [*keys, "n_sequences", "tp", "fp", "fn", "tn", "precision", "recall", "f1", "fpr"]
     ]
@@ -167,11 +172,15 @@ def _summary(metrics: pd.DataFrame, onsets: pd.DataFrame) -> pd.DataFrame:
     return m.merge(o, on=keys, how="outer").sort_values(keys, ignore_index=True)
 
 
-def _timelines(lake: Path, reference: str, source: str, method: str, task_name: str, out: Path) -> list[Path]:
-    """Timeline figures of (source, method, task) on its first few demonstrations (the first sequence of
+def _timelines(
+    lake: Path, reference: str, source: str, method: str, task_name: str, seed: int, out: Path
+) -> list[Path]:
+    """Timeline figures of (source, method, task, seed) on its first few demonstrations (the first sequence of
     each) vs the reference, one file per demonstration, named by it: ``<out>/<demonstration>.png``."""
     contacts = ev.read_contacts(lake, [reference, source], task=task_name)
-    mine = contacts[(contacts["source"] == source) & (contacts["method"] == method)]
+    mine = contacts[
+        (contacts["source"] == source) & (contacts["method"] == method) & (contacts["seed"].fillna(0) == seed)
+    ]
     ref = contacts[contacts["source"] == reference]
     firsts = mine.sort_values("sequence_id").drop_duplicates("reference_id")
     paths = []
@@ -195,12 +204,12 @@ def log_evaluation(
     lake_digest: str,
     tracking_uri: str,
 ) -> dict[str, str]:
-    """One MLflow run per (source, task, method) in the "evaluate" experiment, plus a summary run.
+    """One MLflow run per (source, task, method, seed) in the "evaluate" experiment, plus a summary run.
 
-    Each run has params source/task/method (task "*" = all tasks) and metrics precision, recall,
+    Each run has params source/task/method/seed (task "*" = all tasks) and metrics precision, recall,
     f1, fpr, onset_error_ms, onset_pairs (N), the counts and per-region F1, and (per task) the
     contact timelines of a few sequences vs their reference. The summary run holds the
-    metrics-by-method bar chart and the tables as CSV. Cached on the figures, the lake state
+    metrics-by-method bar chart (seeds pooled) and the tables as CSV. Cached on the figures, the lake state
     (``lake_digest``: the timelines read it) and ``tracking_uri`` (another MLflow store is new
     work), so a re-run on unchanged data adds no duplicate runs.
 
@@ -218,8 +227,9 @@ def log_evaluation(
         out = Path(tmp)
         for row in summary.to_dict(orient="records"):
             source, method, task_name, against = row["source"], row["method"], row["task"], row["reference_source"]
+            seed = int(row["seed"])
             task_label = "all" if task_name == ALL else task_name  # MLflow's UI filters and sorts on plain words
-            name = f"{source}/{method}/{task_label}"
+            name = f"{source}/{method}/{task_label}/seed{seed}"
             if against != reference:  # tactile fidelity: scored against the replay's measured contacts
                 name = f"fidelity/{name}"
             tags = {
@@ -229,15 +239,17 @@ def log_evaluation(
                 "source": source,
                 "method": method,
                 "task": task_label,
+                "seed": str(seed),
             }
             with tracking.stage_run(layout, "evaluate", name, tags) as run:
-                mlflow.log_params({"source": source, "task": task_label, "method": method})
+                mlflow.log_params({"source": source, "task": task_label, "method": method, "seed": seed})
                 values = {k: float(row[k]) for k in RUN_METRICS}
                 regional = metrics[
                     (metrics["reference_source"] == against)
                     & (metrics["source"] == source)
                     & (metrics["method"] == method)
                     & (metrics["task"] == task_name)
+                    & (metrics["seed"] == seed)
                     & (metrics["region"] != ALL)
                 ]
                 values |= {
@@ -246,16 +258,17 @@ def log_evaluation(
                 mlflow.log_metrics(values)
                 if task_name != ALL and against == reference:
                     # named by demonstration, not method: MLflow's compare view lines the methods' figures up
-                    for png in _timelines(layout.lake, reference, source, method, task_name, out / name):
+                    for png in _timelines(layout.lake, reference, source, method, task_name, seed, out / name):
                         mlflow.log_artifact(str(png), f"contact_timelines/{task_name}")
                 runs[name] = run.info.run_id
         with tracking.stage_run(
             layout, "evaluate", f"summary-{profile}", {"kind": "summary", "profile": profile}
         ) as run:
+            pooled, pooled_onsets = ev.pool_seeds(metrics, onsets)
             for against, title in ((reference, "metrics_by_method"), (ev.FIDELITY_REFERENCE, "fidelity_by_method")):
-                scored = metrics[metrics["reference_source"] == against]
+                scored = pooled[pooled["reference_source"] == against]
                 if len(scored):
-                    against_onsets = onsets[onsets["reference_source"] == against]
+                    against_onsets = pooled_onsets[pooled_onsets["reference_source"] == against]
                     mlflow.log_artifact(str(ev.plot_metrics_by_method(scored, against_onsets, out / f"{title}.png")))
             for name, frame in (("summary", summary), ("contact_metrics", metrics), ("onset_summaries", onsets)):
                 frame.to_csv(out / f"{name}.csv", index=False)
@@ -328,6 +341,7 @@ def publish_artefacts(
             "source",
             "method",
             "task",
+            "seed",
             "n_sequences",
             "precision",
             "recall",

@@ -72,6 +72,7 @@ def extract_real_contacts(
     """Real-robot contacts + TwinTac/FSR thresholds of one replay."""
     rows, thresholds = replay_contacts(Path(lake), replay, calibration_id, reference, config)
     rid = replay["recording_id"]
+    rows = datasets.with_seed(rows, replay.get("seed"))
     datasets.CONTACTS.write(Path(lake), datasets.RecordingKey(rid), rows, source=Source.REAL, task=replay["task"])
     datasets.LAKE["thresholds"].write(Path(lake), datasets.RecordingKey(rid), thresholds)
     return {"recording_id": rid, "rows": rows.num_rows}

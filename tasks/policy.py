@@ -42,7 +42,7 @@ def _digest(payload: dict) -> str:
     cache_policy=cache_policy(*POLICY_MODULES),
     persist_result=True,
     retries=1,
-    task_run_name="dataset-{source[method]}-{source[task]}",
+    task_run_name="dataset-{source[method]}-{source[task]}-seed{source[seed]}",
 )
 def build_policy_dataset(source: dict, config: PolicyConfig, sim: SimConfig, data: str) -> dict:
     """Replay one task x method's rollouts (with ``sim``, the physics they were recorded with) and
@@ -53,9 +53,16 @@ def build_policy_dataset(source: dict, config: PolicyConfig, sim: SimConfig, dat
 
     layout = DataLayout.from_env(data)
     rollouts = read_rollouts(Path(source["path"]), config.max_rollouts, source["references"])
-    root = datasets.policy_dataset(layout, source["method"], source["task"])
+    root = datasets.policy_dataset(layout, source["method"], source["task"], source["seed"])
     summary = build_dataset(
-        root, source["task"], source["method"], rollouts, build_scene(source["task"], sim), sim, config
+        root,
+        source["task"],
+        source["method"],
+        rollouts,
+        build_scene(source["task"], sim),
+        sim,
+        config,
+        source["seed"],
     )
     get_run_logger().info(
         "%s: %d episodes, %d frames, rendering %.0f images/s, replay error max %.2e rad",
@@ -71,7 +78,7 @@ def build_policy_dataset(source: dict, config: PolicyConfig, sim: SimConfig, dat
 @task(
     cache_policy=cache_policy(*POLICY_MODULES),
     persist_result=True,
-    task_run_name="train-{dataset[method]}-{dataset[task]}",
+    task_run_name="train-{dataset[method]}-{dataset[task]}-seed{dataset[seed]}",
 )
 def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -> dict:
     """Train LeRobot's Diffusion Policy on one dataset with loss and learning rate streamed to
@@ -99,13 +106,14 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -
     key = _digest(
         {"dataset": dataset["digest"], "references": dataset["references"], "frames": dataset["frames"], **settings}
     )
-    out = datasets.policy_training(layout, dataset["method"], dataset["task"], key)
+    out = datasets.policy_training(layout, dataset["method"], dataset["task"], dataset["seed"], key)
     out.mkdir(parents=True, exist_ok=True)
     run_file = out / "mlflow_run_id"
     tags = {
         "profile": profile,
         "task": dataset["task"],
         "method": dataset["method"],
+        "seed": str(dataset["seed"]),
         "origin": dataset["origin"],
         "pretrained_backbone": TAGS_NOTE,
     }
@@ -113,7 +121,8 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -
     if run_file.exists():
         run_ctx = mlflow.start_run(run_id=run_file.read_text().strip())
     else:
-        run_ctx = tracking.stage_run(layout, "policy", f"{dataset['method']}-{dataset['task']}", tags)
+        name = f"{dataset['method']}-{dataset['task']}-seed{dataset['seed']}"
+        run_ctx = tracking.stage_run(layout, "policy", name, tags)
     with run_ctx as run:
         run_file.write_text(run.info.run_id)
         mlflow.log_params(
@@ -154,7 +163,7 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -
 @task(
     cache_policy=cache_policy(*POLICY_MODULES),
     persist_result=True,
-    task_run_name="evaluate-{trained[method]}-{trained[task]}",
+    task_run_name="evaluate-{trained[method]}-{trained[task]}-seed{trained[seed]}",
 )
 def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: str, profile: str) -> dict:
     """Closed-loop episodes of the trained policy; one ``policy_eval`` row (lake) and success
@@ -185,6 +194,7 @@ def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: s
     row = {
         "task": trained["task"],
         "method": trained["method"],
+        "seed": trained["seed"],
         "origin": trained["origin"],
         "profile": profile,
         "dataset_episodes": trained["episodes"],
@@ -207,7 +217,7 @@ def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: s
         "replans": result.replans,
         "mlflow_run": trained["mlflow_run"],
     }
-    key = datasets.MethodTaskKey(trained["method"], trained["task"])
+    key = datasets.SeededMethodTaskKey(trained["method"], trained["task"], str(trained["seed"]))
     datasets.POLICY_EVAL.write(layout.lake, key, pa.Table.from_pylist([row]))
     tracking.experiment(layout, "policy")
     with mlflow.start_run(run_id=trained["mlflow_run"]):
@@ -235,22 +245,26 @@ def report_policy(profile: str, rows: list[dict]) -> list[dict]:
         table=[
             {k: (round(v, 3) if isinstance(v, float) else v) for k, v in r.items() if k != "mlflow_run"} for r in rows
         ],
-        description=f"Diffusion Policy closed-loop success per task x method ({profile})",
+        description=f"Diffusion Policy closed-loop success per task x method x seed ({profile})",
     )
     return rows
 
 
 def rollout_sources(
-    data: str, config: PolicyConfig, tasks: Sequence[str] | None = None, methods: Sequence[str] | None = None
+    data: str,
+    config: PolicyConfig,
+    tasks: Sequence[str] | None = None,
+    methods: Sequence[str] | None = None,
+    seed: int = 0,
 ) -> list[dict]:
-    """The rollouts file of every task x method (most preferred of ``config.origins``, narrowed to
-    ``tasks`` / ``methods``), with its content hash and, with ``config.same_demonstrations``, the
+    """The rollouts file of every task x method of sweep seed ``seed`` (most preferred of ``config.origins``,
+    narrowed to ``tasks`` / ``methods``), with its content hash and, with ``config.same_demonstrations``, the
     demonstrations all of the task's methods follow (``references``; None = every rollout)."""
     from touch2robot.policy.dataset import chosen_sources
 
     layout = DataLayout.from_env(data)
     out = []
-    for s, references in chosen_sources(layout.lake, config, tasks, methods):
+    for s, references in chosen_sources(layout.lake, config, tasks, methods, seed):
         if references == []:
             get_run_logger().warning(
                 "policy: the methods of %s follow no demonstration in common; %s is skipped", s.task, s.method
@@ -260,6 +274,7 @@ def rollout_sources(
             {
                 "task": s.task,
                 "method": s.method,
+                "seed": seed,
                 "origin": s.origin,
                 "path": str(s.path),
                 "digest": datasets.file_digest(s.path),

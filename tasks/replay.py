@@ -35,13 +35,13 @@ REPLAYED, SKIPPED, FAILED = "replayed", "skipped", "failed"
     persist_result=True,
     retries=1,
     retry_condition_fn=retry_unless_lost_physics,
-    task_run_name="replay-{job.task}-{job.method}-{job.demo_index}",
+    task_run_name="replay-{job.task}-{job.method}-{job.demo_index}-seed{job.seed}",
 )
 def replay_on_twin(job: ReplayJob, rollouts_digest: str, sim: SimConfig, twin: TwinConfig, seed: int) -> dict:
     """Execute one trajectory open loop on the twin; write its robot replay and calibration MCAPs next to the
     glove session it follows. ``rollouts_digest`` (the rollouts file's content) keys the cache on the
-    trajectory; ``seed`` is the profile's ``replay.seed`` (the rest of that section chose the job). A replay that
-    loses physics is a ``failed`` row with the reason, not a crashed stage."""
+    trajectory; ``seed`` is the sweep seed's ``replay.seed`` (the rest of that section chose the job). A replay
+    that loses physics is a ``failed`` row with the reason, not a crashed stage."""
     import pyarrow.compute as pc
     import pyarrow.parquet as pq
 
@@ -56,7 +56,7 @@ def replay_on_twin(job: ReplayJob, rollouts_digest: str, sim: SimConfig, twin: T
             rollout,
             sim,
             twin,
-            job.seed(seed),
+            job.twin_seed(seed),
             job.replay_path,
             job.calibration_path,
             job.metadata(TWIN_RIG),
@@ -72,11 +72,12 @@ def replay_on_twin(job: ReplayJob, rollouts_digest: str, sim: SimConfig, twin: T
     }
 
 
-def _row(task_name: str, method: str, status: str, reason: str, **values: object) -> dict:
+def _row(task_name: str, method: str, seed: int, status: str, reason: str, **values: object) -> dict:
     """A ``replays`` row: the given columns, NULL elsewhere."""
     return dict.fromkeys(SCHEMAS["replays"].names) | {
         "task": task_name,
         "method": method,
+        "seed": seed,
         "status": status,
         "reason": reason,
         "rig": TWIN_RIG,
@@ -88,6 +89,7 @@ def _job_row(job: ReplayJob) -> dict:
     return _row(
         job.task,
         job.method,
+        job.seed,
         REPLAYED,
         "",
         origin=job.origin,
@@ -98,14 +100,14 @@ def _job_row(job: ReplayJob) -> dict:
     )
 
 
-def skipped_rows(skipped: list[Skipped]) -> list[dict]:
-    """``replays`` rows of what had nothing to replay."""
-    return [_row(s.task, s.method, SKIPPED, s.reason) for s in skipped]
+def skipped_rows(skipped: list[Skipped], seed: int) -> list[dict]:
+    """``replays`` rows of what sweep seed ``seed`` had nothing to replay."""
+    return [_row(s.task, s.method, seed, SKIPPED, s.reason) for s in skipped]
 
 
 @task(**ALWAYS_RUN)
 def store_replays(lake: str, rows: list[dict]) -> list[str]:
-    """Make ``rows`` the whole ``replays`` table (one file per task x method). Runs every time, like the
+    """Make ``rows`` the whole ``replays`` table (one file per task x method x seed). Runs every time, like the
     evaluation tables: the table says what this run's replays are."""
     frame = pd.DataFrame(rows, columns=SCHEMAS["replays"].names)
     return replace_table(Path(lake), "replays", frame, EVALUATION_IDS["replays"].columns)
@@ -113,13 +115,21 @@ def store_replays(lake: str, rows: list[dict]) -> list[str]:
 
 @task(**ALWAYS_RUN)
 def report_replays(profile: str, rows: list[dict]) -> list[dict]:
-    """A Prefect table per task x method (replayed, skipped, failed, the reasons) and the log's summary."""
+    """A Prefect table per task x method x seed (replayed, skipped, failed, the reasons) and the log's summary."""
     logger = get_run_logger()
-    summary: dict[tuple[str, str], dict] = {}
+    summary: dict[tuple[str, str, int], dict] = {}
     for r in rows:
         s = summary.setdefault(
-            (r["task"], r["method"]),
-            {"task": r["task"], "method": r["method"], REPLAYED: 0, SKIPPED: 0, FAILED: 0, "reasons": []},
+            (r["task"], r["method"], r["seed"]),
+            {
+                "task": r["task"],
+                "method": r["method"],
+                "seed": r["seed"],
+                REPLAYED: 0,
+                SKIPPED: 0,
+                FAILED: 0,
+                "reasons": [],
+            },
         )
         s[r["status"]] += 1
         if r["reason"] and r["reason"] not in s["reasons"]:
@@ -128,17 +138,21 @@ def report_replays(profile: str, rows: list[dict]) -> list[dict]:
     for s in table:
         if s[SKIPPED] or s[FAILED]:
             logger.warning(
-                "replay %s/%s: %d skipped, %d failed: %s", s["task"], s["method"], s[SKIPPED], s[FAILED], s["reasons"]
+                "replay %s/%s seed %d: %d skipped, %d failed: %s",
+                *(s["task"], s["method"], s["seed"], s[SKIPPED], s[FAILED], s["reasons"]),
             )
     create_table_artifact(
         key="replays", table=table, description=f"Robot replays on the hardware twin per task x method ({profile})"
     )
     lines = [
-        f"| {s['task']} | {s['method']} | {s[REPLAYED]} | {s[SKIPPED]} | {s[FAILED]} | {s['reasons']} |" for s in table
+        f"| {s['task']} | {s['method']} | {s['seed']} | {s[REPLAYED]} | {s[SKIPPED]} | {s[FAILED]} | {s['reasons']} |"
+        for s in table
     ]
     create_markdown_artifact(
         key="replays-summary",
         markdown=f"# Replays on the hardware twin ({profile})\n\n"
-        "| task | method | replayed | skipped | failed | why |\n|---|---|---|---|---|---|\n" + "\n".join(lines) + "\n",
+        "| task | method | seed | replayed | skipped | failed | why |\n|---|---|---|---|---|---|---|\n"
+        + "\n".join(lines)
+        + "\n",
     )
     return table

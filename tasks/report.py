@@ -21,11 +21,15 @@ from touch2robot.provenance import code_version
 from touch2robot.settings import DataLayout
 
 # Per task, the first demonstration replayed on the robot: the human's contacts and every method's measured ones
+# on the replays of one sweep seed ($seed)
 TIMELINES_SQL = """
-WITH chosen AS (SELECT task, min(reference_id) AS reference_id FROM contacts WHERE source = 'real' GROUP BY task)
+WITH chosen AS (
+  SELECT task, min(reference_id) AS reference_id FROM contacts
+  WHERE source = 'real' AND coalesce(seed, 0) = $seed GROUP BY task
+)
 SELECT c.source, c.method, c.task, c.reference_id, c.t_ref, c.region, c.contact
 FROM contacts c JOIN chosen USING (task, reference_id)
-WHERE c.source IN ('human', 'real')
+WHERE c.source = 'human' OR (c.source = 'real' AND coalesce(c.seed, 0) = $seed)
 """
 
 
@@ -62,7 +66,7 @@ def _learning_curves(layout: DataLayout) -> pd.DataFrame:
 
 
 @task(**ALWAYS_RUN)
-def build_report(data: str, profile: str) -> dict:
+def build_report(data: str, profile: str, seeds: list[int] | None = None) -> dict:
     """Write the run's report from the catalog (refreshed first by the caller) and the stages' MLflow curves,
     and publish it. Its folder is named by the digest of everything it shows: a re-run on unchanged results
     finds the report already there and adds no MLflow run; changed results make a new one beside it."""
@@ -70,19 +74,22 @@ def build_report(data: str, profile: str) -> dict:
 
     layout = DataLayout.from_env(data)
     config = load_profile(profile)
+    sweep = config.sweep(seeds)
     tables = {
         name: catalog.query(layout, f"SELECT * FROM {name}").to_pandas()
         for name in ("comparison", "policy_eval", "user_study")
     }
-    timelines = catalog.query(layout, TIMELINES_SQL).to_pandas()
+    timelines = catalog.query(layout, TIMELINES_SQL.replace("$seed", str(int(sweep[0])))).to_pandas()
     curves = _learning_curves(layout)
     versus = str(config.comparison.versus)
     provenance = {
         "profile": config.name,
         "created": time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime()),
         "seeds": (
-            f"one per stage: teachers {config.teacher.seed}, student {config.student.seed}, replay "
-            f"{config.replay.seed}, policy {config.policy.seed}, bootstrap {config.comparison.seed}"
+            f"{len(sweep)} sweep seed(s) {', '.join(map(str, sweep))}, each added to every stage's own: teachers "
+            f"{config.teacher.seed}, student {config.student.seed} (its held-out split stays that of "
+            f"{config.student.seed}), replay {config.replay.seed}, policy {config.policy.seed}; bootstrap "
+            f"{config.comparison.seed}; contact timelines from seed {sweep[0]}"
         ),
         "compared with": versus,
         "code": code_version(),
@@ -91,9 +98,9 @@ def build_report(data: str, profile: str) -> dict:
     shown = rp.table_digest(*tables.values(), timelines, curves, pd.DataFrame([provenance]).drop(columns="created"))
     folder = layout.reports / f"{config.name}-{shown}"
     report = rp.ReportData(
-        tables["comparison"], tables["policy_eval"], tables["user_study"], provenance, timelines, curves
+        tables["comparison"], tables["policy_eval"], tables["user_study"], provenance, timelines, curves, seeds=sweep
     )
-    found = rp.claims(report.comparison, report.policy, versus)
+    found = rp.claims(report.comparison, rp.pooled_policy(report.policy, sweep), versus)
     markdown, page, run_file = folder / "report.md", folder / "report.html", folder / "mlflow_run_id"
     if not (markdown.is_file() and page.is_file() and run_file.is_file()):
         report = dataclasses.replace(report, figures=rp.draw_figures(report))

@@ -62,8 +62,14 @@ def _split_tags(split: dict) -> dict[str, str]:
     }
 
 
-@task(cache_policy=cache_policy(*STUDENT_MODULES), persist_result=True, retries=1, task_run_name="student-dataset")
+@task(
+    cache_policy=cache_policy(*STUDENT_MODULES),
+    persist_result=True,
+    retries=1,
+    task_run_name="student-dataset-seed{seed}",
+)
 def augment_dataset(
+    seed: int,
     config: StudentConfig,
     teacher: TeacherConfig,
     split: dict,
@@ -74,7 +80,8 @@ def augment_dataset(
 ) -> dict:
     """Pair the teacher rollouts of the training and validation demonstrations with their
     demonstrations, augment the training ones to ``config.augmented_rollouts`` (balanced over
-    the tasks) and write ``student_dataset`` (one file per task); the manifest goes to MLflow."""
+    the tasks) and write ``student_dataset`` (one file per task); the manifest goes to MLflow. ``seed``: the
+    sweep seed, whose teacher rollouts it reads (``config`` is the profile's for that seed)."""
     import mlflow
     import pyarrow.parquet as pq
 
@@ -94,13 +101,14 @@ def augment_dataset(
         "total_rollouts": config.augmented_rollouts,
         "joint_noise_std": config.joint_noise_std,
         "seed": config.seed,
+        "sweep_seed": seed,
         "teacher_method": config.teacher_method,
         "in_sample": split["in_sample"],
         "tasks": {},
     }
     paths = {}
     for task_name in tasks:
-        source = datasets.teacher_rollouts(layout.lake, config.teacher_method, task_name)
+        source = datasets.teacher_rollouts(layout.lake, config.teacher_method, task_name, seed)
         if not source.is_file():
             raise FileNotFoundError(
                 f"student: no teacher rollouts of {config.teacher_method}/{task_name} at {source}: run the "
@@ -111,7 +119,8 @@ def augment_dataset(
         val = [s for s in seqs if s.reference_id in split["val"].get(task_name, [])]
         count = counts.get(task_name, 0)
         table = augment(train, count, config.joint_noise_std, config.seed, val)
-        path = datasets.STUDENT_DATASET.write(layout.lake, datasets.TaskKey(task_name), table)
+        key = datasets.SeededTaskKey(task_name, str(seed))
+        path = datasets.STUDENT_DATASET.write(layout.lake, key, datasets.with_seed(table, seed))
         paths[task_name] = str(path)
         manifest["tasks"][task_name] = {
             "train_demos": split["train"].get(task_name, []),
@@ -125,7 +134,8 @@ def augment_dataset(
             "file": path.name,
             "sha256": datasets.file_digest(path),
         }
-    with tracking.stage_run(layout, "student", "dataset", {"profile": profile, **_split_tags(split)}) as run:
+    tags = {"profile": profile, "seed": str(seed), **_split_tags(split)}
+    with tracking.stage_run(layout, "student", f"dataset-seed{seed}", tags) as run:
         mlflow.log_params(
             {
                 "augmented_rollouts": config.augmented_rollouts,
@@ -136,6 +146,7 @@ def augment_dataset(
         mlflow.log_dict(manifest, "manifest.json")
     get_run_logger().info("student dataset: %s", {t: m["rows"] for t, m in manifest["tasks"].items()})
     return {
+        "seed": seed,
         "paths": paths,
         "tasks": tasks,
         "digest": _sha([manifest["tasks"][t]["sha256"] for t in tasks]),
@@ -154,7 +165,10 @@ def _clouds(tasks: list[str], teacher: TeacherConfig):
 
 
 @task(
-    cache_policy=cache_policy(*STUDENT_MODULES), persist_result=True, retries=1, task_run_name="student-train-{variant}"
+    cache_policy=cache_policy(*STUDENT_MODULES),
+    persist_result=True,
+    retries=1,
+    task_run_name="student-train-{variant}-seed{dataset[seed]}",
 )
 def train_student(
     variant: str, config: StudentConfig, teacher: TeacherConfig, dataset: dict, data: str, profile: str
@@ -179,14 +193,18 @@ def train_student(
     cfg = config.variant(variant)
     dump = cfg.model_dump(mode="json", exclude={"ablations"})
     folder = datasets.student_checkpoints(layout, variant, _sha([dump, dataset["digest"]]))
+    seed = dataset["seed"]
     tags = {
         "profile": profile,
         "variant": variant,
+        "seed": str(seed),
         "checkpoints": str(folder),
         "dataset_run": dataset["mlflow_run"],
         **_split_tags(dataset["split"]),
     }
-    run_id = tracking.resumable_run(layout, "student", folder, f"student-{variant}", tags, {**dump, "variant": variant})
+    run_id = tracking.resumable_run(
+        layout, "student", folder, f"student-{variant}-seed{seed}", tags, {**dump, "variant": variant}
+    )
     tasks = dataset["tasks"]
     table = pa.concat_tables([pq.read_table(dataset["paths"][t]) for t in tasks])
     # pyarrow.compute makes its kernels (pc.equal) at import: no source or stub names them
@@ -226,6 +244,7 @@ def train_student(
         get_run_logger().info("student %s resumed at update %d of %d", variant, result.resumed_from, result.steps)
     return {
         "variant": variant,
+        "seed": seed,
         "folder": str(folder),
         "mlflow_run": run_id,
         "steps": result.steps,
@@ -244,7 +263,7 @@ def _student_loss(metrics: dict[str, float]) -> str:
 @task(
     cache_policy=cache_policy(*STUDENT_MODULES, "touch2robot.evaluate", "touch2robot.comparison"),
     persist_result=True,
-    task_run_name="student-reconstruct-{trained[variant]}",
+    task_run_name="student-reconstruct-{trained[variant]}-seed{trained[seed]}",
 )
 def reconstruct(
     trained: dict,
@@ -270,7 +289,7 @@ def reconstruct(
 
     one_torch_thread()
     layout = DataLayout.from_env(data)
-    variant, method = trained["variant"], config.teacher_method
+    variant, method, seed = trained["variant"], config.teacher_method, trained["seed"]
     net = load_net(Path(trained["folder"]), config.variant(variant))
     by_id = {r["recording_id"]: r for r in recordings}
     rows = []
@@ -282,7 +301,7 @@ def reconstruct(
         trained_on = [i for role in ("train", "val") for i in split[role].get(task_name, []) if i not in ids]
         reconstructed = ids + trained_on if variant == "full" else ids
         refs = list(_references(layout, [by_id[i] for i in reconstructed], teacher).values())
-        source = datasets.teacher_rollouts(layout.lake, method, task_name)
+        source = datasets.teacher_rollouts(layout.lake, method, task_name, seed)
         result = reconstruct_task(
             net,
             task_name,
@@ -295,25 +314,26 @@ def reconstruct(
         )
         if variant == "full":
             lake = layout.lake
-            datasets.ROLLOUTS.write(
-                lake, datasets.RolloutsKey(Origin.STUDENT, task_name), result.rollouts, method=method
-            )
+            key = datasets.rollouts_key(Origin.STUDENT, task_name, seed)
+            datasets.ROLLOUTS.write(lake, key, datasets.with_seed(result.rollouts, seed), method=method)
             datasets.CONTACTS.write(
                 lake,
-                datasets.RolloutContactsKey(Origin.STUDENT, method),
-                result.contacts,
+                datasets.RolloutContactsKey(Origin.STUDENT, method, str(seed)),
+                datasets.with_seed(result.contacts, seed),
                 source=Source.RECONSTRUCTED,
                 task=task_name,
             )
-            datasets.STUDENT_PREDICTIONS.write(lake, datasets.MethodTaskKey(method, task_name), result.predictions)
+            predictions = datasets.with_seed(result.predictions, seed)
+            key = datasets.SeededMethodTaskKey(method, task_name, str(seed))
+            datasets.STUDENT_PREDICTIONS.write(lake, key, predictions)
         with mlflow.start_run(run_id=trained["mlflow_run"]):
             mlflow.log_metrics({f"heldout/{task_name}/{k}": v for k, v in result.figures.items() if v == v})
-        rows.append({"variant": variant, "task": task_name, "demos": len(refs), **result.figures})
+        rows.append({"variant": variant, "seed": seed, "task": task_name, "demos": len(refs), **result.figures})
         sums.append(heldout_demonstration_sums(layout.lake, task_name, ids, result.contacts.to_pandas()))
     if sums:
-        table = pd.concat(sums, ignore_index=True).assign(method=method, variant=variant)
+        table = pd.concat(sums, ignore_index=True).assign(method=method, variant=variant, seed=seed)
         rows_arrow = pa.Table.from_pandas(table, schema=datasets.STUDENT_VARIANTS.schema, preserve_index=False)
-        datasets.STUDENT_VARIANTS.write(layout.lake, (method, variant), rows_arrow)
+        datasets.STUDENT_VARIANTS.write(layout.lake, (method, variant, str(seed)), rows_arrow)
     return rows
 
 
@@ -322,6 +342,7 @@ def report_student(profile: str, trained: list[dict], rows: list[dict]) -> list[
     """A Prefect table of the held-out figures per variant x task and a summary of the losses."""
     keys = (
         "variant",
+        "seed",
         "task",
         "demos",
         "joint_error_student",
@@ -337,11 +358,12 @@ def report_student(profile: str, trained: list[dict], rows: list[dict]) -> list[
         description=f"Student reconstructions of held-out demonstrations ({profile})",
     )
     lines = [
-        f"| {t['variant']} | {t['steps']} | {t['initial_val_loss']:.4f} | {t['final_val_loss']:.4f} |" for t in trained
+        f"| {t['variant']} | {t['seed']} | {t['steps']} | {t['initial_val_loss']:.4f} | {t['final_val_loss']:.4f} |"
+        for t in trained
     ]
     create_markdown_artifact(
         key="student-summary",
-        markdown=f"# Student ({profile})\n\n| variant | updates | val loss at init | val loss final |\n"
-        "|---|---|---|---|\n" + "\n".join(lines) + "\n",
+        markdown=f"# Student ({profile})\n\n| variant | seed | updates | val loss at init | val loss final |\n"
+        "|---|---|---|---|---|\n" + "\n".join(lines) + "\n",
     )
     return table

@@ -75,15 +75,23 @@ def _run_folder(layout: DataLayout, task_name: str, method: str, config: Teacher
     persist_result=True,
     retries=1,
     retry_condition_fn=retry_unless_lost_physics,
-    task_run_name="teacher-{task_name}-{method}",
+    task_run_name="teacher-{task_name}-{method}-seed{seed}",
 )
 def train_teacher(
-    task_name: str, method: str, config: TeacherConfig, recordings: list[dict], digest: str, data: str, profile: str
+    task_name: str,
+    method: str,
+    seed: int,
+    config: TeacherConfig,
+    recordings: list[dict],
+    digest: str,
+    data: str,
+    profile: str,
 ) -> dict:
     """Train (or finish training) the teacher of one task and method; metrics stream to one MLflow
     run (stage "teachers"), checkpoints are its artefacts. A killed run resumes from the newest
     checkpoint: the retry, or the next flow run, continues instead of starting over. A stopped run
-    (SIGTERM, Ctrl-C) first checkpoints the iteration it is in."""
+    (SIGTERM, Ctrl-C) first checkpoints the iteration it is in. ``seed`` is the sweep seed (``config`` is
+    the profile's for that seed)."""
     from touch2robot.sim.guard import LostPhysicsError
     from touch2robot.teachers.train import WALL_CLOCK_SUFFIX, make_teacher_env, train
 
@@ -95,11 +103,12 @@ def train_teacher(
         "profile": profile,
         "task": task_name,
         "method": method,
+        "seed": str(seed),
         "demonstrations": str(len(recordings)),
         "checkpoints": str(folder),
     }
     run_id = tracking.resumable_run(
-        layout, "teachers", folder, f"teacher-{task_name}-{method}", tags, _params(config, method)
+        layout, "teachers", folder, f"teacher-{task_name}-{method}-seed{seed}", tags, _params(config, method)
     )
     vec_env = make_teacher_env(task_name, refs, config, method)
     mlflow_run = tracking.RunWriter(run_id, tracking.tracking_uri(layout))
@@ -143,6 +152,7 @@ def train_teacher(
     return {
         "task": task_name,
         "method": method,
+        "seed": seed,
         "checkpoint": str(result.checkpoint),
         "iterations": result.iterations,
         "resumed_from": result.resumed_from,
@@ -150,17 +160,24 @@ def train_teacher(
     }
 
 
-def _store_rollouts(layout: DataLayout, task_name: str, method: str, origin: str, rollouts, contacts) -> None:
-    datasets.ROLLOUTS.write(layout.lake, datasets.RolloutsKey(origin, task_name), rollouts, method=method)
+def _store_rollouts(
+    layout: DataLayout, task_name: str, method: str, origin: str, seed: int, rollouts, contacts
+) -> None:
+    key = datasets.rollouts_key(origin, task_name, seed)
+    datasets.ROLLOUTS.write(layout.lake, key, datasets.with_seed(rollouts, seed), method=method)
     datasets.CONTACTS.write(
-        layout.lake, datasets.RolloutContactsKey(origin, method), contacts, source=Source.SIM, task=task_name
+        layout.lake,
+        datasets.RolloutContactsKey(origin, method, str(seed)),
+        datasets.with_seed(contacts, seed),
+        source=Source.SIM,
+        task=task_name,
     )
 
 
 @task(
     cache_policy=cache_policy(*TEACHER_MODULES, "touch2robot.metrics"),
     persist_result=True,
-    task_run_name="rollouts-{trained[task]}-{trained[method]}",
+    task_run_name="rollouts-{trained[task]}-{trained[method]}-seed{trained[seed]}",
 )
 def teacher_rollouts(trained: dict, config: TeacherConfig, recordings: list[dict], digest: str, data: str) -> dict:
     """``config.rollouts_per_task`` deterministic rollouts of a trained teacher -> ``rollouts`` and
@@ -190,7 +207,7 @@ def teacher_rollouts(trained: dict, config: TeacherConfig, recordings: list[dict
         rows, contacts = ro.record(vec_env.env, vec_env.objective, act, method, Origin.TEACHER, seed=config.seed)
     finally:
         vec_env.env.close()
-    _store_rollouts(layout, task_name, method, Origin.TEACHER, rows, contacts)
+    _store_rollouts(layout, task_name, method, Origin.TEACHER, trained["seed"], rows, contacts)
     figures = ro.summary(rows, refs, config.sim.contact_threshold_n)
     with tracking.stage_run(layout, "teachers", "", run_id=trained["mlflow_run"]):
         import mlflow
@@ -199,6 +216,7 @@ def teacher_rollouts(trained: dict, config: TeacherConfig, recordings: list[dict
     return {
         "task": task_name,
         "method": method,
+        "seed": trained["seed"],
         "origin": Origin.TEACHER,
         **figures,
         "iterations": trained["iterations"],
@@ -209,13 +227,14 @@ def teacher_rollouts(trained: dict, config: TeacherConfig, recordings: list[dict
 @task(
     cache_policy=cache_policy(*TEACHER_MODULES, "touch2robot.metrics"),
     persist_result=True,
-    task_run_name="kinematic-{task_name}",
+    task_run_name="kinematic-{task_name}-seed{seed}",
 )
 def kinematic_rollouts(
-    task_name: str, config: TeacherConfig, recordings: list[dict], digest: str, data: str, profile: str
+    task_name: str, seed: int, config: TeacherConfig, recordings: list[dict], digest: str, data: str, profile: str
 ) -> dict:
     """Dex Retargeting's robot trajectories: the kinematic references replayed in MuJoCo with no
-    residual (no teacher), one per demonstration, recorded like teacher rollouts."""
+    residual (no teacher), one per demonstration, recorded like teacher rollouts. Deterministic, but
+    stored per sweep seed like every method's, so that each seed's comparison is complete."""
     from touch2robot.sim.env import BatchEnv
     from touch2robot.sim.scene import build_scene
     from touch2robot.teachers import rollouts as ro
@@ -234,16 +253,23 @@ def kinematic_rollouts(
         )
     finally:
         env.close()
-    _store_rollouts(layout, task_name, Method.DEX_RETARGETING, Origin.KINEMATIC, rows, contacts)
+    _store_rollouts(layout, task_name, Method.DEX_RETARGETING, Origin.KINEMATIC, seed, rows, contacts)
     figures = ro.summary(rows, refs, config.sim.contact_threshold_n)
-    tags = {"profile": profile, "task": task_name, "method": Method.DEX_RETARGETING, "origin": Origin.KINEMATIC}
-    with tracking.stage_run(layout, "teachers", f"kinematic-{task_name}", tags) as run:
+    tags = {
+        "profile": profile,
+        "task": task_name,
+        "method": Method.DEX_RETARGETING,
+        "origin": Origin.KINEMATIC,
+        "seed": str(seed),
+    }
+    with tracking.stage_run(layout, "teachers", f"kinematic-{task_name}-seed{seed}", tags) as run:
         import mlflow
 
         mlflow.log_metrics({f"rollouts/{k}": v for k, v in figures.items() if v == v})
     return {
         "task": task_name,
         "method": Method.DEX_RETARGETING,
+        "seed": seed,
         "origin": Origin.KINEMATIC,
         **figures,
         "iterations": 0,
@@ -257,6 +283,7 @@ def report_teachers(profile: str, results: list[dict]) -> list[dict]:
     keys = (
         "task",
         "method",
+        "seed",
         "origin",
         "iterations",
         "rollouts",
@@ -269,11 +296,13 @@ def report_teachers(profile: str, results: list[dict]) -> list[dict]:
     )
     table = [{k: (round(r[k], 3) if isinstance(r[k], float) else r[k]) for k in keys} for r in results]
     create_table_artifact(key="teacher-rollouts", table=table, description=f"Teacher rollouts ({profile})")
-    lines = [f"| {r['task']} | {r['method']} | {r['success_rate']:.2f} | {r['contact_f1']:.3f} |" for r in table]
+    lines = [
+        f"| {r['task']} | {r['method']} | {r['seed']} | {r['success_rate']:.2f} | {r['contact_f1']:.3f} |"
+        for r in table
+    ]
     create_markdown_artifact(
         key="teachers-summary",
-        markdown=f"# Teachers ({profile})\n\n| task | method | success | contact F1 vs human |\n|---|---|---|---|\n"
-        + "\n".join(lines)
-        + "\n",
+        markdown=f"# Teachers ({profile})\n\n| task | method | seed | success | contact F1 vs human |\n"
+        "|---|---|---|---|---|\n" + "\n".join(lines) + "\n",
     )
     return table

@@ -168,7 +168,7 @@ def write_twin_replays(root: Path, method: str = "touch2robot", twin=None, steps
         replay_rollout(rows, SimConfig(threads=1), twin or TwinConfig(), (k,), replay, calibration, metadata)
         written += [replay, calibration]
     for task, tables in by_task.items():
-        key = datasets.RolloutsKey("teacher", task)
+        key = datasets.rollouts_key("teacher", task, 0)
         datasets.ROLLOUTS.write(root / "lake", key, pa.concat_tables(tables), method=method)
     return written
 
@@ -297,6 +297,7 @@ def scripted_rollout_rows(task: str, method: str, n: int, steps: int, origin: st
             "t": [s * dt for s in rows["step"]],
             "t_ref": [s * dt for s in rows["step"]],
             "reference_joints": [r.tolist() for r in rows["joint_target"]],
+            "seed": [0] * total,  # the sweep seed
         }
     )
 

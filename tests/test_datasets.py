@@ -1,5 +1,5 @@
 """The catalog of the data folder (touch2robot.datasets): every id format builds and parses back,
-a mistyped id fails naming it, the ids are the lake's historical spellings, and the readiness
+a mistyped id fails naming it, the ids are the lake's documented spellings, and the readiness
 queries find what the stages need."""
 
 from __future__ import annotations
@@ -18,15 +18,31 @@ from touch2robot.settings import DataLayout
 
 ROUND_TRIPS = [
     (ds.RECORDING_ID, ds.RecordingKey("0123456789abcdef"), "0123456789abcdef"),
-    (ds.ROLLOUTS_ID, ds.RolloutsKey("teacher", "pick"), "teacher-pick"),
-    (ds.ROLLOUTS_ID, ds.RolloutsKey("kinematic", "drawer"), "kinematic-drawer"),
-    (ds.ROLLOUT_CONTACTS_ID, ds.RolloutContactsKey("kinematic", "dex-retargeting"), "kinematic-dex-retargeting"),
-    (ds.ROLLOUT_CONTACTS_ID, ds.RolloutContactsKey("student", "touch2robot"), "student-touch2robot"),
+    (ds.ROLLOUTS_ID, ds.RolloutsKey("teacher", "pick", "0"), "teacher-pick-seed0"),
+    (ds.ROLLOUTS_ID, ds.RolloutsKey("kinematic", "drawer", "12"), "kinematic-drawer-seed12"),
+    (
+        ds.ROLLOUT_CONTACTS_ID,
+        ds.RolloutContactsKey("kinematic", "dex-retargeting", "0"),
+        "kinematic-dex-retargeting-seed0",
+    ),
+    (ds.ROLLOUT_CONTACTS_ID, ds.RolloutContactsKey("student", "touch2robot", "3"), "student-touch2robot-seed3"),
+    # a method whose name looks like a seed still reads back to itself
+    (ds.ROLLOUT_CONTACTS_ID, ds.RolloutContactsKey("teacher", "a-seed1", "2"), "teacher-a-seed1-seed2"),
     (ds.TASK_ID, ds.TaskKey("wipe"), "wipe"),
+    (ds.SEEDED_TASK_ID, ds.SeededTaskKey("wipe", "1"), "wipe-seed1"),
     (ds.METHOD_TASK_ID, ds.MethodTaskKey("dex-retargeting", "rotate"), "dex-retargeting-rotate"),
+    (
+        ds.SEEDED_METHOD_TASK_ID,
+        ds.SeededMethodTaskKey("dex-retargeting", "rotate", "0"),
+        "dex-retargeting-rotate-seed0",
+    ),
     (ds.TEACHER_RUN_ID, ds.TeacherRunKey("pick", "contrack", "0123456789ab"), "pick-contrack-0123456789ab"),
     (ds.STUDENT_RUN_ID, ds.StudentRunKey("no_tactile", "0123456789ab"), "no_tactile-0123456789ab"),
-    (ds.POLICY_RUN_ID, ds.PolicyRunKey("dex-retargeting", "pick", "0123456789ab"), "dex-retargeting-pick-0123456789ab"),
+    (
+        ds.POLICY_RUN_ID,
+        ds.PolicyRunKey("dex-retargeting", "pick", "2", "0123456789ab"),
+        "dex-retargeting-pick-seed2-0123456789ab",
+    ),
 ]
 
 
@@ -40,9 +56,16 @@ def test_every_id_format_builds_and_parses_back(fmt: ds.IdFormat, key: tuple, fi
 @pytest.mark.parametrize(
     ("fmt", "file_id", "message"),
     [
-        (ds.ROLLOUTS_ID, "teacher_pick", r"'teacher_pick' is not a \{origin\}-\{task\} id \(origin one of"),
-        (ds.ROLLOUTS_ID, "replay-pick", r"'replay-pick' is not a \{origin\}-\{task\} id"),
-        (ds.ROLLOUTS_ID, "teacher-pik", r"task one of \('pick', 'rotate', 'wipe', 'drawer'\)"),
+        (
+            ds.ROLLOUTS_ID,
+            "teacher_pick-seed0",
+            r"'teacher_pick-seed0' is not a \{origin\}-\{task\}-seed\{seed\} id \(origin one of",
+        ),
+        (ds.ROLLOUTS_ID, "replay-pick-seed0", r"'replay-pick-seed0' is not a \{origin\}-\{task\}-seed\{seed\} id"),
+        (ds.ROLLOUTS_ID, "teacher-pik-seed0", r"task one of \('pick', 'rotate', 'wipe', 'drawer'\)"),
+        # a file from before the sweep seeds: named, with what it should be
+        (ds.ROLLOUTS_ID, "teacher-pick", r"'teacher-pick' is not a .*seed a sweep seed"),
+        (ds.ROLLOUTS_ID, "teacher-pick-seed01", r"seed a sweep seed \(a whole number >= 0\)"),
         (ds.METHOD_TASK_ID, "touch2robot", r"'touch2robot' is not a \{method\}-\{task\} id"),
         (ds.TASK_ID, "Pick", r"'Pick' is not a \{task\} id"),
         (ds.TEACHER_RUN_ID, "pick-contrack-xyz", r"config 12 hex digits"),
@@ -57,15 +80,17 @@ def test_a_mistyped_id_fails_naming_it(fmt: ds.IdFormat, file_id: str, message: 
 
 def test_a_mistyped_key_fails_naming_the_table_and_the_field(tmp_path: Path) -> None:
     with pytest.raises(
-        ds.DatasetIdError, match=r"lake table 'rollouts': \{origin\}-\{task\}: task 'pik' is not one of"
+        ds.DatasetIdError, match=r"lake table 'rollouts': \{origin\}-\{task\}-seed\{seed\}: task 'pik' is not one of"
     ):
-        ds.ROLLOUTS.path(tmp_path, ds.RolloutsKey("teacher", "pik"), method="touch2robot")
+        ds.ROLLOUTS.path(tmp_path, ds.rollouts_key("teacher", "pik", 0), method="touch2robot")
     with pytest.raises(ds.DatasetIdError, match=r"origin 'teachers' is not one of"):
-        ds.ROLLOUTS_ID.build(ds.RolloutsKey("teachers", "pick"))
+        ds.ROLLOUTS_ID.build(ds.rollouts_key("teachers", "pick", 0))
+    with pytest.raises(ds.DatasetIdError, match=r"seed '-1' is not a sweep seed"):
+        ds.ROLLOUTS_ID.build(ds.rollouts_key("teacher", "pick", -1))
     with pytest.raises(ds.DatasetIdError, match=r"method 'a/b' is not a name"):
         ds.METHOD_TASK_ID.build(ds.MethodTaskKey("a/b", "pick"))
     with pytest.raises(ValueError, match=r"partitioned by \('method',\)"):
-        ds.ROLLOUTS.path(tmp_path, ds.RolloutsKey("teacher", "pick"))
+        ds.ROLLOUTS.path(tmp_path, ds.rollouts_key("teacher", "pick", 0))
 
 
 def test_evaluation_ids_join_their_key_columns() -> None:
@@ -87,48 +112,53 @@ def test_every_lake_table_is_in_the_catalog_with_its_schema() -> None:
     assert ds.CONTACTS.partition_keys == ("source", "task") and ds.ROLLOUTS.partition_keys == ("method",)
 
 
-def test_lake_paths_keep_their_historical_names(tmp_path: Path) -> None:
-    """The spellings the stages used before the catalog: a refactor must not move a file."""
+def test_lake_paths_are_the_documented_ones(tmp_path: Path) -> None:
+    """The spellings schemas/tables.py documents (a refactor must not move a file): every file of a stochastic
+    stage names its sweep seed."""
     lake = tmp_path / "lake"
-    assert ds.teacher_rollouts(lake, "touch2robot", "pick") == lake / "rollouts/method=touch2robot/teacher-pick.parquet"
-    sim = ds.CONTACTS.path(lake, ds.RolloutContactsKey("teacher", "contrack"), task="wipe", source="sim")
-    assert sim == lake / "contacts/source=sim/task=wipe/teacher-contrack.parquet"
+    rollouts = ds.teacher_rollouts(lake, "touch2robot", "pick", 0)
+    assert rollouts == lake / "rollouts/method=touch2robot/teacher-pick-seed0.parquet"
+    sim = ds.CONTACTS.path(lake, ds.RolloutContactsKey("teacher", "contrack", "1"), task="wipe", source="sim")
+    assert sim == lake / "contacts/source=sim/task=wipe/teacher-contrack-seed1.parquet"
     human = ds.human_contacts(lake, {"recording_id": "0123456789abcdef", "task": "pick"})
     assert human == lake / "contacts/source=human/task=pick/0123456789abcdef.parquet"
-    assert ds.POLICY_EVAL.path(lake, ds.MethodTaskKey("contrack", "pick")) == lake / "policy_eval/contrack-pick.parquet"
-    assert ds.STUDENT_DATASET.path(lake, ds.TaskKey("pick")) == lake / "student_dataset/pick.parquet"
+    key = ds.SeededMethodTaskKey("contrack", "pick", "0")
+    assert ds.POLICY_EVAL.path(lake, key) == lake / "policy_eval/contrack-pick-seed0.parquet"
+    assert ds.STUDENT_DATASET.path(lake, ds.SeededTaskKey("pick", "2")) == lake / "student_dataset/pick-seed2.parquet"
     layout = DataLayout(tmp_path)
-    assert ds.policy_dataset(layout, "contrack", "pick") == tmp_path / "datasets/contrack-pick"
-    assert ds.lerobot_repo_id("contrack", "pick") == "touch2robot/contrack-pick"
+    assert ds.policy_dataset(layout, "contrack", "pick", 1) == tmp_path / "datasets/contrack-pick-seed1"
+    assert ds.lerobot_repo_id("contrack", "pick", 1) == "touch2robot/contrack-pick-seed1"
     key = "0123456789abcdef0123"
     assert (
         ds.teacher_checkpoints(layout, "pick", "contrack", key)
         == tmp_path / "checkpoints/teachers/pick-contrack-0123456789ab"
     )
     assert ds.student_checkpoints(layout, "full", key) == tmp_path / "checkpoints/student/full-0123456789ab"
-    assert ds.policy_training(layout, "contrack", "pick", key[:12]) == tmp_path / "policies/contrack-pick-0123456789ab"
+    training = ds.policy_training(layout, "contrack", "pick", 0, key[:12])
+    assert training == tmp_path / "policies/contrack-pick-seed0-0123456789ab"
 
 
 def test_entries_parse_every_file_and_name_a_stray_one(tmp_path: Path) -> None:
     lake = tmp_path / "lake"
     rows = pa.table({"x": [1]})
     for origin, task, method in (("teacher", "pick", "contrack"), ("kinematic", "drawer", "dex-retargeting")):
-        path = ds.ROLLOUTS.path(lake, ds.RolloutsKey(origin, task), method=method)
+        path = ds.ROLLOUTS.path(lake, ds.rollouts_key(origin, task, 0), method=method)
         path.parent.mkdir(parents=True, exist_ok=True)
         pq.write_table(rows, path)
     found = [(key, partition) for key, partition, _ in ds.ROLLOUTS.entries(lake)]
     assert found == [
-        (ds.RolloutsKey("teacher", "pick"), {"method": "contrack"}),
-        (ds.RolloutsKey("kinematic", "drawer"), {"method": "dex-retargeting"}),
+        (ds.RolloutsKey("teacher", "pick", "0"), {"method": "contrack"}),
+        (ds.RolloutsKey("kinematic", "drawer", "0"), {"method": "dex-retargeting"}),
     ]
-    stray = lake / "rollouts" / "method=contrack" / "teacher_pick.parquet"
+    stray = lake / "rollouts" / "method=contrack" / "teacher_pick-seed0.parquet"
     pq.write_table(rows, stray)
     with pytest.raises(
-        ds.DatasetIdError, match=r"teacher_pick.parquet: 'teacher_pick' is not a \{origin\}-\{task\} id"
+        ds.DatasetIdError,
+        match=r"teacher_pick-seed0.parquet: 'teacher_pick-seed0' is not a \{origin\}-\{task\}-seed\{seed\} id",
     ):
         list(ds.ROLLOUTS.entries(lake))
     stray.unlink()
-    unpartitioned = lake / "rollouts" / "teacher-pick.parquet"
+    unpartitioned = lake / "rollouts" / "teacher-pick-seed0.parquet"
     pq.write_table(rows, unpartitioned)
     with pytest.raises(ds.DatasetIdError, match=r"expected lake/rollouts/method=<method>/<id>.parquet"):
         list(ds.ROLLOUTS.entries(lake))
@@ -160,13 +190,14 @@ def test_readiness_finds_the_retargeted_and_taught_demonstrations(demo_lake: Pat
     assert ds.retargeted_demonstrations(lake, [first["task"]]) == [first]
     ds.RETARGETED.path(lake, ds.RecordingKey(first["recording_id"])).unlink()
     assert first not in ds.retargeted_demonstrations(lake)
-    assert ds.taught_demonstrations(lake, "touch2robot") == []
+    assert ds.taught_demonstrations(lake, "touch2robot", 0) == []
     second = demos[1]
     ds.ROLLOUTS.write(
         lake,
-        ds.RolloutsKey("teacher", second["task"]),
+        ds.rollouts_key("teacher", second["task"], 0),
         scripted_rollout_rows(second["task"], "touch2robot", 1, 3),
         method="touch2robot",
     )
-    assert ds.taught_demonstrations(lake, "touch2robot") == [second]
-    assert ds.taught_demonstrations(lake, "contrack") == []
+    assert ds.taught_demonstrations(lake, "touch2robot", 0) == [second]
+    assert ds.taught_demonstrations(lake, "touch2robot", 1) == []  # another seed's teacher has not run
+    assert ds.taught_demonstrations(lake, "contrack", 0) == []

@@ -15,7 +15,7 @@ import pyarrow.parquet as pq
 import pytest
 from conftest import write_twin_replays
 
-from schemas.tables import SCHEMAS
+from schemas.tables import SCHEMAS, unseeded
 from touch2robot import evaluate as ev
 from touch2robot import lake as lake_io
 from touch2robot.metrics import ALL
@@ -80,7 +80,7 @@ def _row(table: pd.DataFrame, **keys: str) -> pd.Series:
 
 def test_contact_metrics_known_answers_and_rollups(scored: pd.DataFrame) -> None:
     table = ev.contact_metrics_table(scored, "real")
-    assert list(table.columns) == SCHEMAS["contact_metrics"].names
+    assert list(table.columns) == unseeded("contact_metrics").names
     # m1: 2 tasks x 2 regions + 2 task totals + 2 region totals + 1 overall; m2: 2 + 1 + 2 + 1
     assert len(table) == 9 + 6
     t1 = _row(table, method="m1", task="pick", region="T1")
@@ -125,7 +125,7 @@ def test_onset_errors_pairs_and_summaries() -> None:
     contacts = pd.concat([human, real, sim], ignore_index=True)
 
     r = ev.onset_errors_table(contacts, time_map, "real")
-    assert list(r.columns) == SCHEMAS["onset_errors"].names
+    assert list(r.columns) == unseeded("onset_errors").names
     t1 = _row(r, sequence_id="r1", region="T1")
     assert t1.valid and t1.via_time_map and t1.t_eval_onset == 2.0 and t1.error_ms == pytest.approx(1000.0)
     p1 = _row(r, sequence_id="r1", region="P1")
@@ -150,7 +150,7 @@ def test_onset_errors_pairs_and_summaries() -> None:
 
 def test_replace_table_rewrites_and_prunes(scored: pd.DataFrame, tmp_path: Path) -> None:
     lake = tmp_path / "lake"
-    table = ev.contact_metrics_table(scored, "real")
+    table = ev.contact_metrics_table(scored, "real").assign(seed=0)  # the evaluate task adds the sweep seed
     assert ev.replace_table(lake, "contact_metrics", table, ["source", "method"]) == ["real__m1", "real__m2"]
     assert ev.replace_table(lake, "contact_metrics", table, ["source", "method"]) == ["real__m1", "real__m2"]
     stored = pa.concat_tables(pq.read_table(p) for p in lake_io.files(lake, "contact_metrics"))
@@ -420,7 +420,7 @@ def test_flow_rerun_replaces_and_follows_the_sources(evaluated: tuple[Path, dict
     )
     assert len(o) == 4 * 8 and not o["via_time_map"].any()
     runs = _evaluate_runs(data)
-    assert {"sim/contrack/all", "real/touch2robot/all"} <= set(runs["tags.mlflow.runName"])
+    assert {"sim/contrack/all/seed0", "real/touch2robot/all/seed0"} <= set(runs["tags.mlflow.runName"])
 
     shutil.rmtree(lake / "contacts" / "source=sim")
     # an unpaired ratings file is reported and skipped, like a quarantined recording

@@ -44,16 +44,16 @@ def lake(tmp_path_factory: pytest.TempPathFactory) -> Path:
     lake_io.write_rows(
         lake,
         "rollouts",
-        "teacher-pick",
+        "teacher-pick-seed0",
         scripted_rollout_rows("pick", "contrack", 3, 30),
         partition={"method": "contrack"},
     )
     kinematic = scripted_rollout_rows("pick", "contrack", 1, 10, origin="kinematic", seed=1)
-    lake_io.write_rows(lake, "rollouts", "kinematic-pick", kinematic, partition={"method": "contrack"})
+    lake_io.write_rows(lake, "rollouts", "kinematic-pick-seed0", kinematic, partition={"method": "contrack"})
     lake_io.write_rows(
         lake,
         "rollouts",
-        "kinematic-drawer",
+        "kinematic-drawer-seed0",
         scripted_rollout_rows("drawer", "dex-retargeting", 2, 12, origin="kinematic"),
         partition={"method": "dex-retargeting"},
     )
@@ -84,8 +84,8 @@ def test_origins_narrow_and_order_the_choice(lake: Path) -> None:
 
 
 def test_one_episode_per_demonstration_and_the_same_demonstrations_for_every_method(lake: Path, tmp_path: Path) -> None:
-    teacher = lake_io.file_path(lake, "rollouts", "teacher-pick", {"method": "contrack"})
-    kinematic = lake_io.file_path(lake, "rollouts", "kinematic-pick", {"method": "contrack"})
+    teacher = lake_io.file_path(lake, "rollouts", "teacher-pick-seed0", {"method": "contrack"})
+    kinematic = lake_io.file_path(lake, "rollouts", "kinematic-pick-seed0", {"method": "contrack"})
     assert common_demonstrations([teacher, kinematic]) == ["scripted-000"]
     assert [r.rollout_id[-3:] for r in read_rollouts(teacher, references=["scripted-002", "scripted-000"])] == [
         "002",
@@ -114,14 +114,14 @@ def test_policy_sources_share_their_demonstrations_per_task(tmp_path: Path) -> N
     lake_io.write_rows(
         layout.lake,
         "rollouts",
-        "teacher-pick",
+        "teacher-pick-seed0",
         scripted_rollout_rows("pick", "contrack", 3, 4),
         partition={"method": "contrack"},
     )
     lake_io.write_rows(
         layout.lake,
         "rollouts",
-        "kinematic-pick",
+        "kinematic-pick-seed0",
         scripted_rollout_rows("pick", "dex-retargeting", 2, 4, origin="kinematic"),
         partition={"method": "dex-retargeting"},
     )

@@ -34,7 +34,7 @@ def _build(base: Path, seed: int) -> tuple[Path, str]:
     lake_io.write_rows(
         lake,
         "rollouts",
-        "teacher-pick",
+        "teacher-pick-seed0",
         scripted_rollout_rows("pick", "touch2robot", 3, 10, seed=seed),
         partition={"method": "touch2robot"},
     )

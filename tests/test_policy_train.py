@@ -31,7 +31,7 @@ def trained(tmp_path_factory: pytest.TempPathFactory):
     lake_io.write_rows(
         base / "lake",
         "rollouts",
-        "teacher-pick",
+        "teacher-pick-seed0",
         scripted_rollout_rows("pick", "touch2robot", 4, 30),
         partition={"method": "touch2robot"},
     )
@@ -208,7 +208,7 @@ def test_replayed_demonstrations_reproduce_their_rollouts(tmp_path: Path) -> Non
     path = lake_io.write_rows(
         tmp_path / "lake",
         "rollouts",
-        "teacher-drawer",
+        "teacher-drawer-seed0",
         scripted_rollout_rows("drawer", "contrack", 4, 30),
         partition={"method": "contrack"},
     )
@@ -241,14 +241,14 @@ def test_policy_flow_fills_policy_eval_and_mlflow(tmp_path: Path) -> None:
     lake_io.write_rows(
         layout.lake,
         "rollouts",
-        "teacher-pick",
+        "teacher-pick-seed0",
         scripted_rollout_rows("pick", "contrack", 2, 24),
         partition={"method": "contrack"},
     )
     lake_io.write_rows(
         layout.lake,
         "rollouts",
-        "teacher-pick",
+        "teacher-pick-seed0",
         scripted_rollout_rows("pick", "dexmachina", 2, 24),
         partition={"method": "dexmachina"},
     )
@@ -304,7 +304,7 @@ def test_a_policy_trained_beside_another_equals_it_trained_alone(tmp_path: Path)
             lake_io.write_rows(
                 layout.lake,
                 "rollouts",
-                "teacher-pick",
+                "teacher-pick-seed0",
                 scripted_rollout_rows("pick", method, 2, 24),
                 partition={"method": method},
             )

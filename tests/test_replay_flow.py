@@ -25,7 +25,7 @@ def replayed(demo_lake: Path, tmp_path_factory: pytest.TempPathFactory) -> tuple
     pick = next(g for g in datasets.glove_sessions(layout.lake) if g["task"] == "pick")
     for method, origin in (("contrack", "teacher"), ("dex-retargeting", "kinematic"), ("touch2robot", "student")):
         rows = rollouts_following("pick", method, origin, pick["recording_id"])
-        datasets.ROLLOUTS.write(layout.lake, datasets.RolloutsKey(origin, "pick"), rows, method=method)
+        datasets.ROLLOUTS.write(layout.lake, datasets.rollouts_key(origin, "pick", 0), rows, method=method)
     return layout, replay(profile="smoke", data=str(root), tasks=["pick", "wipe"])
 
 
@@ -41,8 +41,8 @@ def test_each_method_is_replayed_and_ingested_as_the_rigs_recordings(replayed: t
     layout, result = replayed
     assert result["replayed"] == 3 and result["failed"] == 0
     for method in ("contrack", "dex-retargeting", "touch2robot"):
-        assert (layout.recordings / f"pick_s01_d01_{method}_replay.mcap").is_file()
-        assert (layout.recordings / f"pick_s01_d01_{method}_calib.mcap").is_file()
+        assert (layout.recordings / f"pick_s01_d01_{method}_seed0_replay.mcap").is_file()
+        assert (layout.recordings / f"pick_s01_d01_{method}_seed0_calib.mcap").is_file()
     rows = _sql(
         layout,
         "SELECT method, trajectory FROM recordings WHERE kind = 'robot_replay' AND status = 'ingested' ORDER BY 1",
@@ -54,6 +54,10 @@ def test_each_method_is_replayed_and_ingested_as_the_rigs_recordings(replayed: t
     ]
     (real,) = _sql(layout, "SELECT count(DISTINCT sequence_id) FROM contacts WHERE source = 'real'")[0]
     assert real == 3
+    # the sweep seed travels from the replay's metadata to its recording row and its measured contacts
+    assert _sql(layout, "SELECT DISTINCT seed FROM recordings WHERE kind = 'robot_replay'") == [(0,)]
+    assert _sql(layout, "SELECT DISTINCT seed FROM contacts WHERE source = 'real'") == [(0,)]
+    assert _sql(layout, "SELECT count(*) FROM contacts WHERE source = 'human' AND seed IS NOT NULL") == [(0,)]
 
 
 def test_what_has_no_trajectory_is_skipped_with_the_reason(replayed: tuple[DataLayout, dict]) -> None:
@@ -66,7 +70,7 @@ def test_what_has_no_trajectory_is_skipped_with_the_reason(replayed: tuple[DataL
         ("wipe", "dexmachina", "skipped"),
         ("wipe", "touch2robot", "skipped"),
     ]
-    assert rows[0][3] == "no teacher rollouts of dexmachina on pick (teacher-pick.parquet)"
+    assert rows[0][3] == "no teacher rollouts of dexmachina on pick (teacher-pick-seed0.parquet)"
     by = {(s["task"], s["method"]): s for s in result["by_task_method"]}
     assert by[("pick", "dexmachina")]["reasons"] == rows[0][3] and by[("pick", "contrack")]["replayed"] == 1
     replayed_rows = _sql(layout, "SELECT peak_force, perturbation FROM replays WHERE status = 'replayed'")
@@ -97,7 +101,7 @@ def test_replays_of_a_session_from_another_folder_are_written_and_ingested_there
     ingest(profile="smoke", data=str(layout.root), folder=str(elsewhere))
     (glove,) = datasets.glove_sessions(layout.lake)
     rows = rollouts_following("pick", "contrack", "teacher", glove["recording_id"], n=1)
-    datasets.ROLLOUTS.write(layout.lake, datasets.RolloutsKey("teacher", "pick"), rows, method="contrack")
+    datasets.ROLLOUTS.write(layout.lake, datasets.rollouts_key("teacher", "pick", 0), rows, method="contrack")
     result = replay(profile="smoke", data=str(layout.root), tasks=["pick"], methods=["contrack"])
     assert result["replayed"] == 1
     (path,) = _sql(layout, "SELECT path FROM recordings WHERE kind = 'robot_replay'")[0]

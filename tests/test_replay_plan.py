@@ -24,7 +24,7 @@ def layout(demo_lake: Path, tmp_path_factory: pytest.TempPathFactory) -> DataLay
     for method, origin in (("contrack", "teacher"), ("dex-retargeting", "kinematic"), ("touch2robot", "student")):
         datasets.ROLLOUTS.write(
             layout.lake,
-            datasets.RolloutsKey(origin, "pick"),
+            datasets.rollouts_key(origin, "pick", 0),
             rollouts_following("pick", method, origin, pick["recording_id"]),
             method=method,
         )
@@ -32,10 +32,10 @@ def layout(demo_lake: Path, tmp_path_factory: pytest.TempPathFactory) -> DataLay
 
 
 def test_every_method_replays_the_same_demonstration_on_the_same_hardware(layout: DataLayout) -> None:
-    jobs, _ = plan_replays(layout.lake, layout.recordings, ReplayConfig(tasks=("pick",), demos_per_task=3))
+    jobs, _ = plan_replays(layout.lake, layout.recordings, ReplayConfig(tasks=("pick",), demos_per_task=3), 0)
     assert {j.method for j in jobs} == {"contrack", "dex-retargeting", "touch2robot"}
     assert len({j.reference_id for j in jobs}) == 1
-    assert len({j.seed(0) for j in jobs}) == 1  # the draw is the demonstration's, not the method's
+    assert len({j.twin_seed(0) for j in jobs}) == 1  # the draw is the demonstration's, not the method's
     by_method = {j.method: j for j in jobs}
     assert by_method["touch2robot"].origin == "student" and by_method["dex-retargeting"].origin == "kinematic"
     assert by_method["contrack"].trajectory == "teacher-contrack-pick-000"  # the first that follows it
@@ -48,19 +48,19 @@ def test_every_method_replays_the_same_demonstration_on_the_same_hardware(layout
 
 def test_a_method_without_trajectories_is_skipped_with_the_reason(layout: DataLayout) -> None:
     config = ReplayConfig(tasks=("pick", "wipe"), methods=("dexmachina", "contrack"))
-    jobs, skipped = plan_replays(layout.lake, layout.recordings, config)
+    jobs, skipped = plan_replays(layout.lake, layout.recordings, config, 0)
     assert [(j.task, j.method) for j in jobs] == [("pick", "contrack")]
     reasons = {(s.task, s.method): s.reason for s in skipped}
     assert set(reasons) == {("pick", "dexmachina"), ("wipe", "dexmachina"), ("wipe", "contrack")}
-    assert reasons[("pick", "dexmachina")] == "no teacher rollouts of dexmachina on pick (teacher-pick.parquet)"
+    assert reasons[("pick", "dexmachina")] == "no teacher rollouts of dexmachina on pick (teacher-pick-seed0.parquet)"
 
 
 def test_the_teacher_can_stand_for_touch2robot(layout: DataLayout) -> None:
     config = ReplayConfig(tasks=("pick",), methods=("touch2robot",), touch2robot_origin="teacher")
-    jobs, skipped = plan_replays(layout.lake, layout.recordings, config)
+    jobs, skipped = plan_replays(layout.lake, layout.recordings, config, 0)
     assert not jobs and "no teacher rollouts of touch2robot on pick" in skipped[0].reason
 
 
 def test_an_unknown_method_is_named() -> None:
     with pytest.raises(ValueError, match=r"replay\.methods: unknown method 'telepathy'"):
-        plan_replays(Path("/nonexistent"), Path("/nonexistent"), ReplayConfig(methods=("telepathy",)))
+        plan_replays(Path("/nonexistent"), Path("/nonexistent"), ReplayConfig(methods=("telepathy",)), 0)

@@ -43,6 +43,7 @@ def _policy_rows() -> pd.DataFrame:
                 {
                     "task": task,
                     "method": method,
+                    "seed": 0,
                     "origin": "teacher",
                     "profile": "smoke",
                     "dataset_episodes": 4,

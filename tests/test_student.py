@@ -16,6 +16,7 @@ import torch
 
 from schemas.tables import SCHEMAS
 from touch2robot import lake as lake_io
+from touch2robot.datasets import with_seed
 from touch2robot.ingest import recording_rows
 from touch2robot.settings import DataLayout
 from touch2robot.sim.config import SimConfig
@@ -74,8 +75,10 @@ def student_lake(demo_lake: Path, tmp_path_factory: pytest.TempPathFactory) -> P
             env, DemoTracking(refs, TEACHER, "touch2robot"), scripted_teacher, "touch2robot", "teacher"
         )
         env.close()
-        lake_io.write_rows(lake, "rollouts", f"teacher-{rec['task']}", rows, {"method": "touch2robot"})
-        lake_io.write_rows(lake, "contacts", "teacher-touch2robot", contacts, {"source": "sim", "task": rec["task"]})
+        rows, contacts = with_seed(rows, 0), with_seed(contacts, 0)
+        lake_io.write_rows(lake, "rollouts", f"teacher-{rec['task']}-seed0", rows, {"method": "touch2robot"})
+        contacts_id = "teacher-touch2robot-seed0"
+        lake_io.write_rows(lake, "contacts", contacts_id, contacts, {"source": "sim", "task": rec["task"]})
     return root
 
 
@@ -87,7 +90,7 @@ def references(student_lake: Path) -> dict:
 
 def _teacher_rows(root: Path, task: str) -> pa.Table:
     return pq.read_table(
-        lake_io.file_path(DataLayout(root).lake, "rollouts", f"teacher-{task}", {"method": "touch2robot"})
+        lake_io.file_path(DataLayout(root).lake, "rollouts", f"teacher-{task}-seed0", {"method": "touch2robot"})
     )
 
 
@@ -344,7 +347,7 @@ def test_student_flow_end_to_end(student_lake: Path, tmp_path: Path) -> None:
     train_rows = data.filter(pc.equal(data["split"], "train"))  # pyright: ignore[reportAttributeAccessIssue]
     assert len(train_rows["sample_id"].unique()) == 16  # balanced over the 3 trained tasks; drawer validates
     for task in TASKS:
-        assert lake_io.file_path(layout.lake, "rollouts", f"student-{task}", {"method": "touch2robot"}).is_file()
+        assert lake_io.file_path(layout.lake, "rollouts", f"student-{task}-seed0", {"method": "touch2robot"}).is_file()
         assert lake_io.file_path(layout.lake, "student_predictions", f"touch2robot-{task}").is_file()
     assert "reconstructed" in evaluated_sources(layout.lake)
     metrics = contact_metrics_table(read_contacts(layout.lake, ["human", "reconstructed"]), "reconstructed")

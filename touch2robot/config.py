@@ -10,7 +10,7 @@ from importlib import resources
 from pathlib import Path
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from touch2robot.comparison.config import ComparisonConfig
 from touch2robot.contacts.config import ContactsConfig
@@ -49,6 +49,45 @@ class Profile(BaseModel):
     replay: ReplayConfig = ReplayConfig()
     twin: TwinConfig = TwinConfig()
     comparison: ComparisonConfig = ComparisonConfig()
+    seeds: tuple[int, ...] = Field(
+        default=(0,),
+        description="the sweep's seeds: the stochastic stages (teachers, student, twin replays, policies) run once "
+        "per seed, each cached on its own; ingest, contacts and kinematic retargeting run once",
+    )
+
+    @field_validator("seeds")
+    @classmethod
+    def _seeds_are_a_set(cls, seeds: tuple[int, ...]) -> tuple[int, ...]:
+        return check_seeds(seeds)
+
+    def sweep(self, seeds: typing.Sequence[int] | None = None) -> tuple[int, ...]:
+        """The seeds a flow runs: ``seeds`` when given (a command's ``--seeds``; ValueError when not a set of
+        whole numbers >= 0), else the profile's."""
+        if seeds is None:
+            return self.seeds
+        try:
+            return check_seeds(seeds)
+        except ValueError as e:
+            raise ValueError(f"--seeds: {e}") from None
+
+    def for_seed(self, seed: int) -> Profile:
+        """The profile as sweep seed ``seed`` runs it: every stochastic stage's seed moved by ``seed`` (seed 0
+        is the profile as written). The student's held-out split keeps ``student.seed``: every sweep seed is
+        scored on the same demonstrations. The policy's evaluation episodes move by whole episode sets, so
+        two seeds never share an episode."""
+        return self.model_copy(
+            update={
+                "teacher": self.teacher.model_copy(update={"seed": self.teacher.seed + seed}),
+                "student": self.student.model_copy(update={"seed": self.student.seed + seed}),
+                "replay": self.replay.model_copy(update={"seed": self.replay.seed + seed}),
+                "policy": self.policy.model_copy(
+                    update={
+                        "seed": self.policy.seed + seed,
+                        "eval_seed": self.policy.eval_seed + seed * self.policy.eval_episodes,
+                    }
+                ),
+            }
+        )
 
     @model_validator(mode="after")
     def _one_training_per_process(self) -> Profile:
@@ -67,6 +106,19 @@ class Profile(BaseModel):
 
 class ProfileError(ValueError):
     """A profile file that cannot be read or validated; the message names the file and field."""
+
+
+def check_seeds(seeds: typing.Sequence[int]) -> tuple[int, ...]:
+    """``seeds`` as a tuple, or ValueError: a sweep needs at least one seed, each once, none negative (checked
+    before any compute: a duplicate would train the same models twice)."""
+    seeds = tuple(seeds)
+    if not seeds:
+        raise ValueError("give at least one seed")
+    if bad := [s for s in seeds if isinstance(s, bool) or not isinstance(s, int) or s < 0]:
+        raise ValueError(f"seeds are whole numbers >= 0, got {bad[0]!r}")
+    if dupes := sorted({s for s in seeds if seeds.count(s) > 1}):
+        raise ValueError(f"seed {dupes[0]} is given {seeds.count(dupes[0])} times")
+    return seeds
 
 
 def _merged(defaults: dict, overrides: dict) -> dict:

@@ -63,6 +63,7 @@ CONFIG_KEY = Part(lambda: r"[0-9a-f]{12}", lambda: "12 hex digits (a configurati
 
 TASK = one_of(lambda: scenes.TASKS)
 ORIGIN = one_of(lambda: tuple(Origin))
+SEED = Part(lambda: r"0|[1-9][0-9]*", lambda: "a sweep seed (a whole number >= 0)")
 _FIELD = re.compile(r"\{(\w+)\}")
 
 
@@ -117,20 +118,33 @@ class RecordingKey(NamedTuple):
 class RolloutsKey(NamedTuple):
     origin: str
     task: str
+    seed: str
 
 
 class RolloutContactsKey(NamedTuple):
     origin: str
     method: str
+    seed: str
 
 
 class TaskKey(NamedTuple):
     task: str
 
 
+class SeededTaskKey(NamedTuple):
+    task: str
+    seed: str
+
+
 class MethodTaskKey(NamedTuple):
     method: str
     task: str
+
+
+class SeededMethodTaskKey(NamedTuple):
+    method: str
+    task: str
+    seed: str
 
 
 class TeacherRunKey(NamedTuple):
@@ -147,17 +161,22 @@ class StudentRunKey(NamedTuple):
 class PolicyRunKey(NamedTuple):
     method: str
     task: str
+    seed: str
     config: str
 
 
 RECORDING_ID = IdFormat(RecordingKey, "{recording_id}")
-ROLLOUTS_ID = IdFormat(RolloutsKey, "{origin}-{task}", {"origin": ORIGIN, "task": TASK})
-ROLLOUT_CONTACTS_ID = IdFormat(RolloutContactsKey, "{origin}-{method}", {"origin": ORIGIN})
+ROLLOUTS_ID = IdFormat(RolloutsKey, "{origin}-{task}-seed{seed}", {"origin": ORIGIN, "task": TASK, "seed": SEED})
+ROLLOUT_CONTACTS_ID = IdFormat(RolloutContactsKey, "{origin}-{method}-seed{seed}", {"origin": ORIGIN, "seed": SEED})
 TASK_ID = IdFormat(TaskKey, "{task}", {"task": TASK})
+SEEDED_TASK_ID = IdFormat(SeededTaskKey, "{task}-seed{seed}", {"task": TASK, "seed": SEED})
 METHOD_TASK_ID = IdFormat(MethodTaskKey, "{method}-{task}", {"task": TASK})
+SEEDED_METHOD_TASK_ID = IdFormat(SeededMethodTaskKey, "{method}-{task}-seed{seed}", {"task": TASK, "seed": SEED})
 TEACHER_RUN_ID = IdFormat(TeacherRunKey, "{task}-{method}-{config}", {"task": TASK, "config": CONFIG_KEY})
 STUDENT_RUN_ID = IdFormat(StudentRunKey, "{variant}-{config}", {"config": CONFIG_KEY})
-POLICY_RUN_ID = IdFormat(PolicyRunKey, "{method}-{task}-{config}", {"task": TASK, "config": CONFIG_KEY})
+POLICY_RUN_ID = IdFormat(
+    PolicyRunKey, "{method}-{task}-seed{seed}-{config}", {"task": TASK, "seed": SEED, "config": CONFIG_KEY}
+)
 
 
 @dataclass(frozen=True)
@@ -270,7 +289,7 @@ EVALUATION_IDS = {
     "onset_errors": KeyedIdFormat(("source", "method")),
     "comparison": KeyedIdFormat(("reference_source", "source")),
     "user_study": KeyedIdFormat(("ratings_file",)),
-    "replays": KeyedIdFormat(("task", "method")),
+    "replays": KeyedIdFormat(("task", "method", "seed")),
 }
 
 LAKE: dict[str, LakeTable] = {
@@ -280,10 +299,10 @@ LAKE: dict[str, LakeTable] = {
     ),
     "retargeted": LakeTable("retargeted", RECORDING_ID),
     "rollouts": LakeTable("rollouts", ROLLOUTS_ID),
-    "student_dataset": LakeTable("student_dataset", TASK_ID),
-    "student_predictions": LakeTable("student_predictions", METHOD_TASK_ID),
-    "policy_eval": LakeTable("policy_eval", METHOD_TASK_ID),
-    "student_variants": LakeTable("student_variants", KeyedIdFormat(("method", "variant"))),
+    "student_dataset": LakeTable("student_dataset", SEEDED_TASK_ID),
+    "student_predictions": LakeTable("student_predictions", SEEDED_METHOD_TASK_ID),
+    "policy_eval": LakeTable("policy_eval", SEEDED_METHOD_TASK_ID),
+    "student_variants": LakeTable("student_variants", KeyedIdFormat(("method", "variant", "seed"))),
     **{name: LakeTable(name, ids) for name, ids in EVALUATION_IDS.items()},
 }
 RECORDINGS = LAKE["recordings"]
@@ -310,9 +329,21 @@ def reference_files(lake: Path, recording: Mapping[str, str]) -> list[Path]:
     return [*(LAKE[t].path(lake, rid) for t in REFERENCE_TABLES), human_contacts(lake, recording)]
 
 
-def teacher_rollouts(lake: Path, method: str, task: str) -> Path:
-    """The rollouts file of the teacher of ``method`` on ``task``."""
-    return ROLLOUTS.path(lake, RolloutsKey(Origin.TEACHER, task), method=method)
+def rollouts_key(origin: str, task: str, seed: int) -> RolloutsKey:
+    return RolloutsKey(origin, task, str(seed))
+
+
+def with_seed(rows: pa.Table, seed: int | None) -> pa.Table:
+    """``rows`` of a seeded table with the sweep seed that made them (``schemas.tables.unseeded``); None for
+    rows no sweep made (the glove's contacts, a replay recorded without one)."""
+    if "seed" in rows.column_names:
+        rows = rows.drop_columns(["seed"])
+    return rows.append_column("seed", pa.array([seed] * len(rows), pa.int64()))
+
+
+def teacher_rollouts(lake: Path, method: str, task: str, seed: int) -> Path:
+    """The rollouts file of the teacher of ``method`` on ``task``, of sweep seed ``seed``."""
+    return ROLLOUTS.path(lake, rollouts_key(Origin.TEACHER, task, seed), method=method)
 
 
 # --------------------------------------------------------------------------- the data folder's other datasets
@@ -334,19 +365,19 @@ def student_checkpoints(layout: DataLayout, variant: str, config: str) -> Path:
     return layout.checkpoints / "student" / STUDENT_RUN_ID.build(StudentRunKey(variant, config[:12]))
 
 
-def policy_dataset(layout: DataLayout, method: str, task: str) -> Path:
-    """The LeRobot dataset of one task x method's robot demonstrations."""
-    return layout.datasets / METHOD_TASK_ID.build(MethodTaskKey(method, task))
+def policy_dataset(layout: DataLayout, method: str, task: str, seed: int) -> Path:
+    """The LeRobot dataset of one task x method's robot demonstrations of sweep seed ``seed``."""
+    return layout.datasets / SEEDED_METHOD_TASK_ID.build(SeededMethodTaskKey(method, task, str(seed)))
 
 
-def lerobot_repo_id(method: str, task: str) -> str:
-    """LeRobot ``repo_id`` of a task x method dataset (local only: never pushed)."""
-    return f"touch2robot/{METHOD_TASK_ID.build(MethodTaskKey(method, task))}"
+def lerobot_repo_id(method: str, task: str, seed: int) -> str:
+    """LeRobot ``repo_id`` of a task x method x seed dataset (local only: never pushed)."""
+    return f"touch2robot/{SEEDED_METHOD_TASK_ID.build(SeededMethodTaskKey(method, task, str(seed)))}"
 
 
-def policy_training(layout: DataLayout, method: str, task: str, config: str) -> Path:
-    """The training folder (LeRobot checkpoints, MLflow run id) of one task x method's policy."""
-    return layout.policies / POLICY_RUN_ID.build(PolicyRunKey(method, task, config[:12]))
+def policy_training(layout: DataLayout, method: str, task: str, seed: int, config: str) -> Path:
+    """The training folder (LeRobot checkpoints, MLflow run id) of one task x method x seed's policy."""
+    return layout.policies / POLICY_RUN_ID.build(PolicyRunKey(method, task, str(seed), config[:12]))
 
 
 # --------------------------------------------------------------------------- readiness
@@ -377,9 +408,9 @@ def retargeted_demonstrations(lake: Path, tasks: Iterable[str] | None = None) ->
     ]
 
 
-def taught_demonstrations(lake: Path, method: str) -> list[dict]:
-    """The retargeted demonstrations whose task has rollouts of the teacher of ``method``."""
-    return [r for r in retargeted_demonstrations(lake) if teacher_rollouts(lake, method, r["task"]).is_file()]
+def taught_demonstrations(lake: Path, method: str, seed: int) -> list[dict]:
+    """The retargeted demonstrations whose task has rollouts of the teacher of ``method`` of sweep seed ``seed``."""
+    return [r for r in retargeted_demonstrations(lake) if teacher_rollouts(lake, method, r["task"], seed).is_file()]
 
 
 # --------------------------------------------------------------------------- content digests

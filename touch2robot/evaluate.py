@@ -25,7 +25,7 @@ import pyarrow.compute as pc
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from schemas.tables import PARTITIONS, ROBOT_REGIONS, SCHEMAS
+from schemas.tables import PARTITIONS, ROBOT_REGIONS, SCHEMAS, unseeded
 from schemas.vocabulary import Origin, RecordingKind, RecordingStatus, Source
 from touch2robot import lake as lake_io
 from touch2robot.comparison.statistics import CLUSTER_COLUMNS
@@ -58,9 +58,11 @@ __all__ = [
     "heldout_demonstration_sums",
     "is_synthetic",
     "onset_errors_table",
+    "per_seed",
     "plot_metrics_by_method",
     "plot_ratings",
     "plot_timeline",
+    "pool_seeds",
     "pooled_as",
     "ratings_files",
     "read_contacts",
@@ -86,6 +88,7 @@ CONTACT_COLUMNS: tuple[str, ...] = (
     "t_ref",
     "region",
     "contact",
+    "seed",
 )
 
 # Roll-ups written per (source, method): the cube over task x region, like the SQL macro.
@@ -145,6 +148,19 @@ def read_contacts(lake: Path, sources: Sequence[str], task: str | None = None) -
     return dataset.to_table(columns=list(CONTACT_COLUMNS), filter=where).to_pandas()
 
 
+def per_seed(contacts: pd.DataFrame, reference: str = REFERENCE_SOURCE) -> list[tuple[int, pd.DataFrame]]:
+    """``contacts`` split by sweep seed: per seed of the evaluated rows, the reference's rows (the glove's have
+    no seed: every seed is scored against them) and that seed's evaluated rows. A row with no seed (a replay
+    recorded without one) counts as seed 0."""
+    is_reference = contacts["source"] == reference
+    evaluated = contacts[~is_reference]
+    of_seed = evaluated["seed"].fillna(0).astype(np.int64)
+    return [
+        (int(seed), pd.concat([contacts[is_reference], part], ignore_index=True))
+        for seed, part in evaluated.groupby(of_seed, sort=True)
+    ]
+
+
 def read_time_map(lake: Path) -> pd.DataFrame:
     """Every replay's recorded time map (columns recording_id, t, t_ref)."""
     schema = SCHEMAS["time_map"]
@@ -174,10 +190,10 @@ def contact_metrics_table(contacts: pd.DataFrame, eval_source: str, reference: s
         reference: the reference source.
 
     Returns:
-        Columns as ``schemas.tables.contact_metrics``, sorted by method, task, region; empty
+        Columns as ``schemas.tables.contact_metrics`` but its ``seed`` (the caller's), sorted by method, task, region; empty
         when nothing of ``eval_source`` aligns with the reference.
     """
-    names = SCHEMAS["contact_metrics"].names
+    names = unseeded("contact_metrics").names
     counts = contact_counts_long(contacts, ref_source=reference, eval_source=eval_source)
     if counts.empty:
         return pd.DataFrame({c: pd.Series(dtype=object) for c in names})
@@ -196,6 +212,30 @@ def contact_metrics_table(contacts: pd.DataFrame, eval_source: str, reference: s
     return table.sort_values(["method", "task", "region"], ignore_index=True)[names]
 
 
+def pool_seeds(metrics: pd.DataFrame, onset_summaries: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """``contact_metrics`` rows and ``onset_errors`` summary rows with the sweep seeds pooled (counts summed,
+    ratios recomputed from them; E weighted by each seed's valid pairs), ``seed`` NULL: the overall figures
+    of a figure or summary that shows one bar per method."""
+    keys = ["reference_source", "source", "method", "task", "region"]
+    counts = ["n_sequences", *COUNT_COLUMNS, "n"]
+    m = metrics.groupby(keys, as_index=False, sort=True)[counts].sum()
+    tp, fp, fn, tn = (m[c].to_numpy(dtype=np.float64) for c in COUNT_COLUMNS)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        m = m.assign(
+            precision=np.where(tp + fp > 0, tp / (tp + fp), np.nan),
+            recall=np.where(tp + fn > 0, tp / (tp + fn), np.nan),
+            f1=np.where(2 * tp + fp + fn > 0, 2 * tp / (2 * tp + fp + fn), np.nan),
+            fpr=np.where(fp + tn > 0, fp / (fp + tn), np.nan),
+            seed=None,
+        )
+    o = onset_summaries[onset_summaries["sequence_id"] == ALL]
+    o = o.assign(error_sum=o["error_ms"].fillna(0.0) * o["n"])
+    same = [*keys, "sequence_id", "subject", "reference_id"]
+    o = o.groupby(same, as_index=False, sort=True)[[*_ONSET_COUNTS, "error_sum"]].sum()
+    o = o.assign(error_ms=np.where(o["n"] > 0, o["error_sum"] / o["n"].where(o["n"] > 0, 1), np.nan), seed=None)
+    return m[metrics.columns], o.drop(columns="error_sum").reindex(columns=onset_summaries.columns)
+
+
 # --------------------------------------------------------------------------- tactile fidelity
 
 FIDELITY_REFERENCE = Source.REAL
@@ -204,21 +244,24 @@ FIDELITY_REFERENCE = Source.REAL
 
 def fidelity_replays(lake: Path) -> pd.DataFrame:
     """The ingested robot replays that name the trajectory they executed (recording_id, method, task, subject,
-    trajectory): the pairs tactile fidelity scores. A replay that does not name one has nothing to score."""
+    trajectory, seed: NULL read as 0): the pairs tactile fidelity scores. A replay that does not name one has
+    nothing to score."""
     rows = recording_rows(lake).to_pandas()
     keep = (rows["status"] == RecordingStatus.INGESTED) & (rows["kind"] == RecordingKind.ROBOT_REPLAY)
     rows = rows[keep & rows["trajectory"].notna() & (rows["trajectory"] != "")]
-    return rows[["recording_id", "method", "task", "subject", "trajectory"]].reset_index(drop=True)
+    rows = rows.assign(seed=rows["seed"].fillna(0).astype(np.int64))
+    return rows[["recording_id", "method", "task", "subject", "trajectory", "seed"]].reset_index(drop=True)
 
 
 def fidelity_contacts(lake: Path, contact_threshold_n: float) -> pd.DataFrame:
     """Long contacts rows for tactile fidelity, keyed by replay: per robot replay naming its trajectory, the
-    contacts measured on it (source ``real``) and those its trajectory makes on the target hand in simulation
-    (the ``rollouts`` row's region force > ``contact_threshold_n``, the sim contacts' rule; source ``sim`` for a
-    teacher's or the kinematic trajectory, ``reconstructed`` for the student's). Both sides carry the replay
-    as ``sequence_id`` and ``reference_id``, so a trajectory replayed twice is scored twice. The measured side
-    keeps the first sample of each run of equal ``t_ref`` (before the first command and after the last one
-    the replay's clock holds), so that it is a strictly increasing reference timeline."""
+    contacts measured on it (source ``real``) and those its trajectory (the rollout of that id of the replay's
+    sweep seed) makes on the target hand in simulation (the ``rollouts`` row's region force >
+    ``contact_threshold_n``, the sim contacts' rule; source ``sim`` for a teacher's or the kinematic trajectory,
+    ``reconstructed`` for the student's). Both sides carry the replay as ``sequence_id`` and ``reference_id``
+    and its seed, so a trajectory replayed twice is scored twice. The measured side keeps the first sample of
+    each run of equal ``t_ref`` (before the first command and after the last one the replay's clock holds), so
+    that it is a strictly increasing reference timeline."""
     names = list(CONTACT_COLUMNS)
     replays = fidelity_replays(lake)
     if replays.empty:
@@ -226,35 +269,35 @@ def fidelity_contacts(lake: Path, contact_threshold_n: float) -> pd.DataFrame:
     real = read_contacts(lake, [FIDELITY_REFERENCE])
     real = real[real["sequence_id"].isin(set(replays["recording_id"]))].sort_values(["sequence_id", "region", "t"])
     real = real.drop_duplicates(["sequence_id", "region", "t_ref"]).assign(reference_id=lambda f: f["sequence_id"])
+    real = real.assign(seed=real["sequence_id"].map(dict(zip(replays["recording_id"], replays["seed"], strict=True))))
     wanted = set(replays["trajectory"])
-    columns = ["rollout_id", "origin", "t", "t_ref", "region_force"]
+    columns = ["rollout_id", "origin", "seed", "t", "t_ref", "region_force"]
     tables = [pq.read_table(f, columns=columns) for f in lake_io.files(lake, "rollouts")]
     tables = [t.filter(pc.field("rollout_id").isin(sorted(wanted))) for t in tables]
     parts = [real]
     if tables:
         rollouts = pa.concat_tables(tables).to_pandas()
-        by_id = {rid: g for rid, g in rollouts.groupby("rollout_id", sort=False)}
+        by_id = {key: g for key, g in rollouts.groupby(["rollout_id", "seed"], sort=False)}
         for replay in replays.to_dict("records"):
-            rows = by_id.get(replay["trajectory"])
+            rows = by_id.get((replay["trajectory"], replay["seed"]))
             if rows is None:
                 continue
             force = np.stack(rows["region_force"].to_numpy())
             origin = rows["origin"].iloc[0]
-            parts.append(
-                long_rows(
-                    source=Source.RECONSTRUCTED if origin == Origin.STUDENT else Source.SIM,
-                    method=str(replay["method"]),
-                    task=str(replay["task"]),
-                    subject=str(replay["subject"]),
-                    sequence_id=str(replay["recording_id"]),
-                    reference_id=str(replay["recording_id"]),
-                    t=rows["t"].to_numpy(),
-                    t_ref=rows["t_ref"].to_numpy(),
-                    regions=ROBOT_REGIONS,
-                    contact=force > contact_threshold_n,
-                    value=force,
-                ).to_pandas()[names]
-            )
+            simulated = long_rows(
+                source=Source.RECONSTRUCTED if origin == Origin.STUDENT else Source.SIM,
+                method=str(replay["method"]),
+                task=str(replay["task"]),
+                subject=str(replay["subject"]),
+                sequence_id=str(replay["recording_id"]),
+                reference_id=str(replay["recording_id"]),
+                t=rows["t"].to_numpy(),
+                t_ref=rows["t_ref"].to_numpy(),
+                regions=ROBOT_REGIONS,
+                contact=force > contact_threshold_n,
+                value=force,
+            ).to_pandas()
+            parts.append(simulated.assign(seed=replay["seed"])[names])
     return pd.concat(parts, ignore_index=True)[names]
 
 
@@ -275,10 +318,10 @@ def onset_errors_table(
     N = 0), N in ``n`` and the missing-onset counts; their onset and flag columns are NULL.
 
     Returns:
-        Columns as ``schemas.tables.onset_errors``: pair rows sorted by method, task, sequence,
+        Columns as ``schemas.tables.onset_errors`` but its ``seed`` (the caller's): pair rows sorted by method, task, sequence,
         region order, then the summaries; empty when ``eval_source`` has no rows.
     """
-    names = SCHEMAS["onset_errors"].names
+    names = unseeded("onset_errors").names
     if not (contacts["source"] == eval_source).any():
         return pd.DataFrame({c: pd.Series(dtype=object) for c in names})
     result = onset_error_ms_long(
@@ -394,7 +437,7 @@ def heldout_demonstration_sums(
 def ablation_sums(lake: Path) -> pd.DataFrame:
     """The student ablations' demonstration sums (table ``student_variants``, the full model's left out: its
     reconstructions are in ``contacts``) as comparison clusters of preference alignment, source reconstructed."""
-    names = [*CLUSTER_TABLE_COLUMNS, "variant"]
+    names = [*CLUSTER_TABLE_COLUMNS, "variant", "seed"]
     files = lake_io.files(lake, "student_variants")
     if not files:
         return pd.DataFrame({c: pd.Series(dtype=object) for c in names})
@@ -410,10 +453,10 @@ FIDELITY_SOURCE = Source.SIM
 
 def pooled_as(sums: pd.DataFrame, source: str) -> pd.DataFrame:
     """Demonstration sums of several evaluated sources as one (their sums added per method x task x
-    demonstration): tactile fidelity compares a student's and a teacher's trajectories alike."""
-    keys = ["reference_source", "method", "task", "demonstration"]
+    demonstration x seed): tactile fidelity compares a student's and a teacher's trajectories alike."""
+    keys = ["reference_source", "method", "task", "demonstration", "seed"]
     pooled = sums.groupby(keys, as_index=False, sort=True)[list(CLUSTER_COLUMNS)].sum()
-    return pooled.assign(source=source)[list(CLUSTER_TABLE_COLUMNS)]
+    return pooled.assign(source=source)[[*CLUSTER_TABLE_COLUMNS, "seed"]]
 
 
 # --------------------------------------------------------------------------- user study

@@ -115,6 +115,8 @@ def write_rows(lake: Path, table: str, file_id: str, rows: pa.Table, partition: 
     """Validate rows against the table's schema and write them as one file. Partition
     columns are dropped from the file (the folder names carry them)."""
     schema = SCHEMAS[table]
+    if "seed" in schema.names and schema.field("seed").nullable and "seed" not in rows.column_names:
+        rows = rows.append_column("seed", pa.nulls(len(rows), pa.int64()))  # rows no sweep seed made (the glove's)
     try:
         rows = rows.select(schema.names).cast(schema)
     except (KeyError, pa.ArrowInvalid, pa.ArrowTypeError) as e:

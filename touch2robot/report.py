@@ -8,9 +8,11 @@ claims are stated from the intervals, never from the point estimates alone:
 - a contact claim (``versus`` scores higher F1 / a lower onset error than a method) **holds** when
   the paired interval of the difference lies wholly on the claimed side, **does not hold** when it
   lies wholly on the other, and is **not resolved** when it spans 0;
-- a policy claim compares Wilson intervals: it holds when ``versus``'s lies wholly above the
-  method's, does not hold when wholly below, and is not resolved when they overlap (no paired
-  episode outcomes are stored, so no paired test is made).
+- a policy claim compares Wilson intervals of the successes pooled over the sweep's seeds: it holds
+  when ``versus``'s lies wholly above the method's, does not hold when wholly below, and is not
+  resolved when they overlap (no paired episode outcomes are stored, so no paired test is made).
+
+A figure pooled over fewer seeds than the sweep ran says which are missing, in its own cell.
 
 No Prefect imports: the task ``tasks.report.build_report`` gathers the data and calls these.
 """
@@ -33,7 +35,16 @@ from schemas.vocabulary import Source
 from touch2robot import lake as lake_io
 from touch2robot.metrics import ALL
 
-__all__ = ["Claim", "ReportData", "as_text", "claims", "render_html", "render_markdown", "write_report"]
+__all__ = [
+    "Claim",
+    "ReportData",
+    "as_text",
+    "claims",
+    "pooled_policy",
+    "render_html",
+    "render_markdown",
+    "write_report",
+]
 
 SCOPES: dict[str, str] = {
     Source.REAL: "Tactile fidelity: a trajectory's contacts in simulation vs those measured on its replay",
@@ -55,7 +66,7 @@ class ReportData:
     """What a report shows: the catalog's tables, the curves, and where they came from."""
 
     comparison: pd.DataFrame
-    policy: pd.DataFrame
+    policy: pd.DataFrame  # policy_eval rows, one per task x method x seed
     user_study: pd.DataFrame
     provenance: dict[str, str]
     # contacts rows (source, method, task, reference_id, t_ref, region, contact) of a few demonstrations:
@@ -64,6 +75,7 @@ class ReportData:
     # learning curves (stage, panel, series, step, value): the teachers', the student variants', the policies'
     curves: pd.DataFrame = field(default_factory=pd.DataFrame)
     figures: dict[str, bytes] = field(default_factory=dict)  # name -> PNG, filled by :func:`draw_figures`
+    seeds: tuple[int, ...] = (0,)  # the sweep's seeds: a figure without one of them says so
 
 
 @dataclass(frozen=True)
@@ -83,7 +95,47 @@ def as_text(value: object, spec: str = ".3f") -> str:
 
 
 def _interval(row: Mapping, spec: str = ".3f") -> str:
-    return f"{as_text(row['estimate'], spec)} [{as_text(row['ci_low'], spec)}, {as_text(row['ci_high'], spec)}]"
+    text = f"{as_text(row['estimate'], spec)} [{as_text(row['ci_low'], spec)}, {as_text(row['ci_high'], spec)}]"
+    return text + _missing(row)
+
+
+def _missing(row: Mapping) -> str:
+    """A cell's note of the sweep seeds it has no results of ('' when it has them all)."""
+    missing = row.get("seeds_missing")
+    if not missing or (isinstance(missing, float) and np.isnan(missing)):
+        return ""
+    return f" (seed {missing} missing)" if "," not in str(missing) else f" (seeds {missing} missing)"
+
+
+def pooled_policy(policy: pd.DataFrame, seeds: Iterable[int]) -> pd.DataFrame:
+    """``policy_eval`` rows pooled over the sweep's seeds per task x method: successes and episodes summed,
+    the Wilson interval of the pooled rate, the seeds pooled and those of ``seeds`` with no row."""
+    from touch2robot.comparison.statistics import wilson_interval
+
+    columns = ["task", "method", "successes", "episodes", "success_rate", "ci_low", "ci_high", "train_steps"]
+    if policy.empty:
+        return pd.DataFrame(columns=[*columns, "seeds", "seeds_missing"])
+    swept = set(seeds)
+    rows = []
+    for (task, method), cell in policy.groupby(["task", "method"], sort=True):
+        successes, episodes = int(cell["successes"].sum()), int(cell["episodes"].sum())
+        low, high = wilson_interval(successes, episodes)
+        have = {int(s) for s in cell["seed"].fillna(0)} if "seed" in cell.columns else {0}
+        rows.append(
+            {
+                "task": task,
+                "method": method,
+                "successes": successes,
+                "episodes": episodes,
+                "success_rate": successes / episodes if episodes else float("nan"),
+                "ci_low": low,
+                "ci_high": high,
+                "train_steps": int(cell["train_steps"].max()),
+                "seeds": ",".join(map(str, sorted(have))),
+                "seeds_missing": ",".join(map(str, sorted(swept - have))),
+            }
+        )
+    return pd.DataFrame(rows)
 
 
 def _label(row: Mapping) -> str:
@@ -99,7 +151,8 @@ def _scope_name(reference: str, source: str) -> str:
 
 def claims(comparison: pd.DataFrame, policy: pd.DataFrame, versus: str) -> list[Claim]:
     """The paper's claims at this run's size: per scored source and method compared with ``versus``, its
-    F1 and onset error over all tasks; per task and method, its policy's success rate."""
+    F1 and onset error over all tasks; per task and method, its policy's success rate (``policy``: pooled
+    over the seeds, :func:`pooled_policy`)."""
     found: list[Claim] = []
     rows = comparison[(comparison["task"] == ALL) & comparison["metric"].isin(list(HIGHER_IS_BETTER))]
     rows = rows[rows["versus"].notna()]
@@ -117,7 +170,7 @@ def claims(comparison: pd.DataFrame, policy: pd.DataFrame, versus: str) -> list[
         evidence = (
             f"{row['versus']} - {_label(row)}: {as_text(row['difference'], spec)} [{as_text(low, spec)}, "
             f"{as_text(high, spec)}], "
-            f"Holm p {as_text(row['p_holm'], '.2g')}, {row['n_paired']} paired demonstrations"
+            f"Holm p {as_text(row['p_holm'], '.2g')}, {row['n_paired']} paired demonstrations{_missing(row)}"
         )
         if low is None or high is None or np.isnan(low) or np.isnan(high):
             verdict = "not measured"
@@ -138,8 +191,9 @@ def claims(comparison: pd.DataFrame, policy: pd.DataFrame, versus: str) -> list[
             found.append(Claim(statement, "not measured", f"no {versus} policy for {task}"))
             continue
         evidence = (
-            f"{versus} {ours['successes']}/{ours['episodes']} [{ours['ci_low']:.2f}, {ours['ci_high']:.2f}], "
-            f"{method} {row['successes']}/{row['episodes']} [{row['ci_low']:.2f}, {row['ci_high']:.2f}] (Wilson)"
+            f"{versus} {ours['successes']}/{ours['episodes']} [{ours['ci_low']:.2f}, {ours['ci_high']:.2f}]"
+            f"{_missing(ours)}, {method} {row['successes']}/{row['episodes']} [{row['ci_low']:.2f}, "
+            f"{row['ci_high']:.2f}]{_missing(row)} (Wilson, seeds pooled)"
         )
         if ours["ci_low"] > row["ci_high"]:
             verdict = "holds"
@@ -229,6 +283,7 @@ def _score_sections(comparison: pd.DataFrame) -> list[Section]:
 
 
 def _policy_section(policy: pd.DataFrame) -> Section | None:
+    """``policy``: pooled over the seeds (:func:`pooled_policy`)."""
     if policy.empty:
         return None
     rows = [
@@ -236,16 +291,18 @@ def _policy_section(policy: pd.DataFrame) -> Section | None:
             r["task"],
             r["method"],
             f"{r['successes']}/{r['episodes']}",
-            f"{r['success_rate']:.2f} [{r['ci_low']:.2f}, {r['ci_high']:.2f}]",
+            f"{r['success_rate']:.2f} [{r['ci_low']:.2f}, {r['ci_high']:.2f}]{_missing(r)}",
+            r["seeds"],
             str(r["train_steps"]),
         ]
         for r in policy.sort_values(["task", "method"]).to_dict("records")
     ]
     return Section(
         "Policy success (closed loop)",
-        ["task", "method", "successes", "rate [95 % Wilson]", "updates"],
+        ["task", "method", "successes", "rate [95 % Wilson]", "seeds", "updates"],
         rows,
         figure="policy_success",
+        note="episodes of every seed's policy pooled",
     )
 
 
@@ -301,7 +358,8 @@ def _curve_sections(curves: pd.DataFrame) -> list[Section]:
 
 def _sections(data: ReportData) -> list[Section]:
     found = _score_sections(data.comparison)
-    found += [s for s in (_policy_section(data.policy), _user_study_section(data.user_study)) if s is not None]
+    policy = _policy_section(pooled_policy(data.policy, data.seeds))
+    found += [s for s in (policy, _user_study_section(data.user_study)) if s is not None]
     return found + _timeline_sections(data.timelines) + _curve_sections(data.curves)
 
 
@@ -415,14 +473,15 @@ def draw_figures(data: ReportData) -> dict[str, bytes]:
             labels, series, METRIC_LABELS[str(metric)], title
         )
     if not data.policy.empty:
-        tasks = sorted(set(data.policy["task"]))
-        cells = {(r["task"], r["method"]): r for r in data.policy.to_dict("records")}
+        policy = pooled_policy(data.policy, data.seeds)
+        tasks = sorted(set(policy["task"]))
+        cells = {(r["task"], r["method"]): r for r in policy.to_dict("records")}
         series = {
             method: [
                 (c["success_rate"], c["ci_low"], c["ci_high"]) if (c := cells.get((t, method))) else _MISSING
                 for t in tasks
             ]
-            for method in sorted(set(data.policy["method"]))
+            for method in sorted(set(policy["method"]))
         }
         figures["policy_success"] = _bars(tasks, series, "success rate", "policy success (95 % Wilson interval)")
     if not data.curves.empty:
@@ -442,7 +501,9 @@ _STATISTICS = (
     "one demonstration are not independent), scores pooled over a resample's demonstrations. Paired differences "
     "resample the same demonstrations for both methods; the test is the two-sided Wilcoxon signed-rank test over "
     "the per-demonstration scores, Holm-adjusted over the methods compared on one metric, source and task. Success "
-    "rates carry 95 % Wilson intervals. touch2robot.comparison.statistics documents each choice."
+    "rates carry 95 % Wilson intervals. A sweep's seeds pool into each demonstration (its counts summed over "
+    "the seeds) and into each policy's episodes; a figure lacking a seed says which. "
+    "touch2robot.comparison.statistics documents each choice."
 )
 
 
@@ -451,7 +512,7 @@ def render_markdown(data: ReportData, versus: str) -> str:
     lines = [f"# touch2robot report: {data.provenance.get('profile', '')}", ""]
     lines += ["| provenance | |", "|---|---|"] + [f"| {k} | {v} |" for k, v in data.provenance.items()]
     lines += ["", "## What this run found", ""]
-    found = claims(data.comparison, data.policy, versus)
+    found = claims(data.comparison, pooled_policy(data.policy, data.seeds), versus)
     lines += [f"- **{c.verdict}**: {c.statement}. {c.evidence}" for c in found] or ["- nothing compared yet"]
     for section in _sections(data):
         lines += ["", f"## {section.title}", ""]
@@ -491,7 +552,7 @@ def render_html(data: ReportData, versus: str) -> str:
         _html_table(["provenance", ""], data.provenance.items()),
         "<h2>What this run found</h2><ul class='claims'>",
     ]
-    found = claims(data.comparison, data.policy, versus)
+    found = claims(data.comparison, pooled_policy(data.policy, data.seeds), versus)
     for c in found:
         css = c.verdict.replace(" ", "-")
         parts.append(

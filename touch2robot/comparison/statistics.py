@@ -29,6 +29,10 @@ interval and test here, and a score over several demonstrations pools their coun
 - **Multiple comparisons**: the p-values of the methods (or ablations) compared on one metric,
   source and task form one family, Holm-adjusted (:func:`touch2robot.stats.holm`).
 - **Success rates**: Wilson score intervals (:func:`wilson_interval`).
+- **Seeds**: a sweep's seeds (``seed`` column) pool into each demonstration: its counts are summed over
+  the seeds, so the demonstration stays the unit and the seeds' spread enters the interval through the
+  pooled counts. Each row names the seeds pooled into it (``seeds``) and those of the sweep it has no
+  results of (``seeds_missing``): a cell that lacks a seed is scored on the ones it has, and says so.
 
 The random draws of one cell (source, task, method) come from a generator seeded by the
 comparison's seed and the cell's name, so a cell's interval does not change when other cells
@@ -39,6 +43,7 @@ from __future__ import annotations
 
 import math
 import zlib
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -232,17 +237,21 @@ def comparison_table(
     confidence: float = 0.95,
     n_resamples: int = 10_000,
     seed: int = 0,
+    seeds: tuple[int, ...] | None = None,
 ) -> pd.DataFrame:
     """Rows of the ``comparison`` table from per-demonstration sums.
 
     Args:
         clusters: one row per (reference_source, source, method, task, demonstration) with the sums
             of :data:`CLUSTER_COLUMNS` over that demonstration's samples (regions pooled); an optional
-            ``variant`` column names a student ablation of the method ('' = the method itself).
+            ``variant`` column names a student ablation of the method ('' = the method itself), an
+            optional ``seed`` column the sweep seed (absent: seed 0), pooled per demonstration.
         versus: the method every other method is compared with (paired, per cell).
         confidence: the intervals' coverage.
         n_resamples: bootstrap resamples per interval.
         seed: the comparison's seed (each cell draws from its own generator, see the module docstring).
+        seeds: the sweep's seeds, against which each row's ``seeds_missing`` is reported (default: the
+            seeds found in ``clusters``).
 
     Returns:
         Columns as ``schemas.tables.comparison``: per (reference_source, source, task incl. '*', method,
@@ -257,15 +266,20 @@ def comparison_table(
         raise ValueError(f"comparison clusters are missing columns {missing}")
     # no variant (a missing column, or NULL) = the method itself; grouping would drop a NULL key
     variant = clusters["variant"].fillna("") if "variant" in clusters.columns else ""
-    clusters = clusters.assign(variant=variant)
+    of_seed = clusters["seed"].fillna(0).astype(np.int64) if "seed" in clusters.columns else 0
+    clusters = clusters.assign(variant=variant, seed=of_seed)
     if not 0 < confidence < 1:
         raise ValueError(f"confidence must lie in (0, 1), got {confidence}")
     if clusters.empty:
         return pd.DataFrame({c: pd.Series(dtype=object) for c in names})
-    duplicated = clusters.duplicated(["reference_source", "source", "method", "variant", "task", "demonstration"])
+    cell = ["reference_source", "source", "method", "variant", "task"]
+    duplicated = clusters.duplicated([*cell, "demonstration", "seed"])
     if duplicated.any():
         first = clusters[duplicated].iloc[0]
         raise ValueError(f"comparison clusters: demonstration {first['demonstration']!r} appears twice in one cell")
+    swept = tuple(sorted(set(clusters["seed"]))) if seeds is None else tuple(seeds)
+    coverage = _seed_coverage(clusters, cell, swept)
+    clusters = clusters.groupby([*cell, "demonstration"], as_index=False, sort=True)[list(CLUSTER_COLUMNS)].sum()
     rows: list[dict] = []
     for (reference, source), group in clusters.groupby(["reference_source", "source"], sort=True):
         pooled = group.groupby(["method", "variant", "demonstration"], as_index=False)[list(CLUSTER_COLUMNS)].sum()
@@ -276,5 +290,23 @@ def comparison_table(
     table = pd.DataFrame(rows)
     family = ["reference_source", "source", "task", "metric"]
     table["p_holm"] = table.groupby(family, sort=False)["p_value"].transform(lambda p: holm(p.to_numpy()))
+    table = table.drop(columns=["seeds", "seeds_missing"], errors="ignore").merge(coverage, on=cell, how="left")
     order = ["reference_source", "source", "metric", "task", "method", "variant"]
     return table.sort_values(order, ignore_index=True)[names]
+
+
+def _seed_coverage(clusters: pd.DataFrame, cell: list[str], swept: tuple[int, ...]) -> pd.DataFrame:
+    """Per cell (and per method over all tasks): the seeds it has results of and the swept ones it lacks."""
+    per_task = clusters.groupby(cell, sort=False)["seed"].agg(lambda s: frozenset(s.tolist())).reset_index()
+    overall = per_task.groupby([c for c in cell if c != "task"], as_index=False)["seed"].agg(
+        lambda sets: frozenset().union(*sets)
+    )
+    coverage = pd.concat([per_task, overall.assign(task=ALL)], ignore_index=True)
+
+    def spelled(values: Iterable[int]) -> str:
+        return ",".join(str(v) for v in sorted(values))
+
+    return coverage.assign(
+        seeds=coverage["seed"].map(spelled),
+        seeds_missing=coverage["seed"].map(lambda have: spelled(set(swept) - have)),
+    ).drop(columns="seed")

@@ -58,6 +58,7 @@ def _row(path: Path, recording_id: str, size: int, status: str, reason: str, rec
             "reference_recording": [meta.get("reference_recording")],
             "calibration_recording": [meta.get("calibration_recording")],
             "trajectory": [meta.get("trajectory") or None],
+            "seed": pa.array([int(meta["seed"]) if meta.get("seed") else None], pa.int64()),
             "start_time_s": [rec.start_ns / 1e9 if rec else None],
             "end_time_s": [rec.end_ns / 1e9 if rec else None],
             "duration_s": [duration],

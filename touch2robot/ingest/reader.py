@@ -196,6 +196,9 @@ def _check_metadata(path: Path, kind: str, metadata: dict[str, str]) -> None:
     trajectory = metadata.get("trajectory")
     if "trajectory" in OPTIONAL_METADATA_KEYS[kind] and trajectory and not plaus.NAME_PATTERN.fullmatch(trajectory):
         refuse("trajectory", "a rollout id (letters, digits, '_', '.', '-'; at most 64)")
+    seed = metadata.get("seed")
+    if "seed" in OPTIONAL_METADATA_KEYS[kind] and seed is not None and not plaus.SEED_PATTERN.fullmatch(seed):
+        refuse("seed", "a sweep seed: a whole number >= 0 of at most 9 digits")
 
 
 def _check_plausible(path: Path, topic: Topic, name: str, values: np.ndarray) -> None:

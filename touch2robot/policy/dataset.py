@@ -88,17 +88,17 @@ class Source:
     path: Path
 
 
-def sources(lake: Path, preference: tuple[str, ...] = ORIGIN_PREFERENCE) -> list[Source]:
-    """Per task x method present in the lake's ``rollouts`` table, the file of the most
+def sources(lake: Path, preference: tuple[str, ...] = ORIGIN_PREFERENCE, seed: int = 0) -> list[Source]:
+    """Per task x method present in the lake's ``rollouts`` table of sweep seed ``seed``, the file of the most
     preferred origin (default student > teacher > kinematic; origins not in ``preference``
     are never used), sorted by task then method. A file the catalog cannot name (not
-    ``method=<m>/<origin>-<task>.parquet``) raises :class:`touch2robot.datasets.DatasetIdError`."""
+    ``method=<m>/<origin>-<task>-seed<seed>.parquet``) raises :class:`touch2robot.datasets.DatasetIdError`."""
     unknown = set(preference) - set(ORIGIN_PREFERENCE)
     if unknown:
         raise ValueError(f"policy.origins: unknown origin(s) {sorted(unknown)}; choose from {ORIGIN_PREFERENCE}")
     best: dict[tuple[str, str], Source] = {}
-    for (origin, task), partition, path in ROLLOUTS.entries(lake):
-        if origin not in preference:
+    for (origin, task, of_seed), partition, path in ROLLOUTS.entries(lake):
+        if origin not in preference or of_seed != str(seed):
             continue
         method = partition["method"]
         cand = Source(task, method, origin, path)
@@ -136,14 +136,18 @@ def common_demonstrations(paths: list[Path]) -> list[str]:
 
 
 def chosen_sources(
-    lake: Path, cfg: PolicyConfig, tasks: Sequence[str] | None = None, methods: Sequence[str] | None = None
+    lake: Path,
+    cfg: PolicyConfig,
+    tasks: Sequence[str] | None = None,
+    methods: Sequence[str] | None = None,
+    seed: int = 0,
 ) -> list[tuple[Source, list[str] | None]]:
-    """Every task x method's rollouts file (most preferred of ``cfg.origins``, narrowed to ``tasks``
-    / ``methods``) with, under ``cfg.same_demonstrations``, the demonstrations every chosen method of
-    its task follows (None = every rollout; [] = none in common, so nothing to compare)."""
+    """Every task x method's rollouts file of sweep seed ``seed`` (most preferred of ``cfg.origins``, narrowed
+    to ``tasks`` / ``methods``) with, under ``cfg.same_demonstrations``, the demonstrations every chosen method
+    of its task follows (None = every rollout; [] = none in common, so nothing to compare)."""
     chosen = [
         s
-        for s in sources(lake, tuple(cfg.origins))
+        for s in sources(lake, tuple(cfg.origins), seed)
         if (not tasks or s.task in tasks) and (not methods or s.method in methods)
     ]
     shared: dict[str, list[str]] = {}
@@ -309,10 +313,17 @@ class DatasetSummary:
 
 
 def build_dataset(
-    root: Path, task: str, method: str, rollouts: list[Rollout], scene: Scene, sim: SimConfig, cfg: PolicyConfig
+    root: Path,
+    task: str,
+    method: str,
+    rollouts: list[Rollout],
+    scene: Scene,
+    sim: SimConfig,
+    cfg: PolicyConfig,
+    seed: int = 0,
 ) -> DatasetSummary:
-    """Replay ``rollouts`` in ``scene`` (``cfg.replay_batch`` at a time as BatchEnv copies),
-    render the cameras and write a finalised LeRobot dataset at ``root``. It is built in a
+    """Replay ``rollouts`` (of sweep seed ``seed``) in ``scene`` (``cfg.replay_batch`` at a time as BatchEnv
+    copies), render the cameras and write a finalised LeRobot dataset at ``root``. It is built in a
     temporary sibling folder and renamed into place, so ``root`` never holds half a dataset."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
@@ -320,7 +331,7 @@ def build_dataset(
     root = Path(root)
     root.parent.mkdir(parents=True, exist_ok=True)
     tmp = root.with_name(f".{root.name}.{uuid.uuid4().hex[:8]}.tmp")
-    repo_id = lerobot_repo_id(method, task)
+    repo_id = lerobot_repo_id(method, task, seed)
     instruction = scenes.task(task).instruction
     errors: list[np.ndarray] = []
     renderer = CameraRenderer(scene, cfg.cameras, cfg.image_size)

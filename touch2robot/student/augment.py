@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow as pa
 
-from schemas.tables import SCHEMAS
+from schemas.tables import unseeded
 from touch2robot.scenes import TASKS
 from touch2robot.teachers.reference import DemoReference
 from touch2robot.teachers.rollouts import column
@@ -197,4 +197,4 @@ def augment(
         tables.append(_rows(seq, f"train-{task}-{k:03d}", "train", k // len(train), noise))
     for k, seq in enumerate(val):
         tables.append(_rows(seq, f"val-{task}-{k:03d}", "val", 0, np.zeros_like(seq.joints)))
-    return pa.concat_tables(tables).cast(SCHEMAS["student_dataset"])
+    return pa.concat_tables(tables).cast(unseeded("student_dataset"))

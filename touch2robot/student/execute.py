@@ -16,7 +16,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from schemas.tables import ROBOT_REGIONS, SCHEMAS
+from schemas.tables import ROBOT_REGIONS, unseeded
 from schemas.vocabulary import Origin, Source
 from touch2robot.metrics import contact_scores
 from touch2robot.sim.env import BatchEnv
@@ -117,7 +117,7 @@ def prediction_rows(
                 }
             )
         )
-    return pa.concat_tables(tables).cast(SCHEMAS["student_predictions"])
+    return pa.concat_tables(tables).cast(unseeded("student_predictions"))
 
 
 @dataclass

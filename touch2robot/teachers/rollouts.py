@@ -14,7 +14,7 @@ from collections.abc import Callable
 import numpy as np
 import pyarrow as pa
 
-from schemas.tables import ROBOT_REGIONS, SCHEMAS
+from schemas.tables import ROBOT_REGIONS, unseeded
 from schemas.vocabulary import Source
 from touch2robot.contacts import long_rows
 from touch2robot.metrics import contact_scores
@@ -159,7 +159,7 @@ def _tables(
                 value=get("region_force"),
             )
         )
-    rollouts = pa.concat_tables(rollout_tables).cast(SCHEMAS["rollouts"])
+    rollouts = pa.concat_tables(rollout_tables).cast(unseeded("rollouts"))
     return rollouts, pa.concat_tables(contact_tables)
 
 

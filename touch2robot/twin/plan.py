@@ -21,7 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from schemas.vocabulary import Method, Origin
 from touch2robot import scenes
-from touch2robot.datasets import ROLLOUTS, RolloutsKey, glove_sessions
+from touch2robot.datasets import ROLLOUTS, glove_sessions, rollouts_key
 
 
 class ReplayConfig(BaseModel):
@@ -65,10 +65,11 @@ class ReplayJob:
     subject: str
     demo_index: int  # the demonstration's place among the task's replayed ones: seeds the twin's draw
     folder: str  # the glove session's folder: a replay names its reference and calibration by file name there
+    seed: int  # the sweep seed of the trajectory
 
     @property
     def stem(self) -> str:
-        return f"{Path(self.reference_recording).stem.removesuffix('_glove')}_{self.method}"
+        return f"{Path(self.reference_recording).stem.removesuffix('_glove')}_{self.method}_seed{self.seed}"
 
     @property
     def replay_path(self) -> Path:
@@ -78,9 +79,9 @@ class ReplayJob:
     def calibration_path(self) -> Path:
         return Path(self.folder) / f"{self.stem}_calib.mcap"
 
-    def seed(self, base: int) -> tuple[int, int, int]:
-        """The twin's seed under the profile's ``replay.seed``: the same hardware draw for every method's replay of
-        one demonstration."""
+    def twin_seed(self, base: int) -> tuple[int, int, int]:
+        """The twin's seed under the sweep seed's ``replay.seed``: the same hardware draw for every method's replay
+        of one demonstration."""
         return (base, scenes.TASKS.index(self.task), self.demo_index)
 
     def metadata(self, rig: str) -> dict[str, str]:
@@ -92,6 +93,7 @@ class ReplayJob:
             "reference_recording": self.reference_recording,
             "calibration_recording": self.calibration_path.name,
             "trajectory": self.trajectory,
+            "seed": str(self.seed),
             "rig": rig,
         }
 
@@ -127,8 +129,11 @@ def _glove_folder(glove: dict, recordings: Path) -> Path:
     return ingested_from.parent if ingested_from.is_file() else recordings
 
 
-def plan_replays(lake: Path, recordings: Path, config: ReplayConfig) -> tuple[list[ReplayJob], list[Skipped]]:
-    """The replays ``config`` asks for, given the lake's glove sessions and rollouts; and what is skipped."""
+def plan_replays(
+    lake: Path, recordings: Path, config: ReplayConfig, seed: int
+) -> tuple[list[ReplayJob], list[Skipped]]:
+    """The replays ``config`` (sweep seed ``seed``'s) asks for, given the lake's glove sessions and that seed's
+    rollouts; and what is skipped."""
     for method in config.methods:
         if method not in set(Method):
             raise ValueError(f"replay.methods: unknown method {method!r}; expected one of {', '.join(Method)}")
@@ -142,7 +147,7 @@ def plan_replays(lake: Path, recordings: Path, config: ReplayConfig) -> tuple[li
             continue
         for method in config.methods:
             origin = config.origin(method)
-            path = ROLLOUTS.path(lake, RolloutsKey(origin, task), method=method)
+            path = ROLLOUTS.path(lake, rollouts_key(origin, task, seed), method=method)
             if not path.is_file():
                 skipped.append(Skipped(task, method, f"no {origin} rollouts of {method} on {task} ({path.name})"))
                 continue
@@ -166,6 +171,7 @@ def plan_replays(lake: Path, recordings: Path, config: ReplayConfig) -> tuple[li
                         subject=glove["subject"],
                         demo_index=k,
                         folder=str(folder),
+                        seed=seed,
                     )
                 )
     return jobs, skipped
