@@ -25,7 +25,15 @@ from tasks.evaluate import (
 from tasks.ingest import refresh_catalog
 from tasks.runners import ProfileTaskRunner
 from touch2robot.config import load_profile
-from touch2robot.datasets import CONTACTS, RECORDINGS, ROLLOUTS, STUDENT_VARIANTS, file_digest, folder_digest
+from touch2robot.datasets import (
+    CONTACTS,
+    RECORDINGS,
+    ROLLOUTS,
+    STUDENT_VARIANTS,
+    check_ids,
+    file_digest,
+    folder_digest,
+)
 from touch2robot.evaluate import (
     FIDELITY_REFERENCE,
     REFERENCE_SOURCE,
@@ -55,6 +63,7 @@ def evaluate(
     layout = DataLayout.from_env(data)
     config = load_profile(profile)
     sweep = config.sweep(seeds)
+    check_ids(layout.lake, ("contacts", "rollouts", "student_variants"))  # a stray file fails here, named
     lake = str(layout.lake)
     sources = evaluated_sources(layout.lake, reference)
     digests = [folder_digest(source_folders(layout.lake, s, reference)) for s in sources]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from statistics import fmean
 
+import pandas as pd
 from prefect import flow
 
 from flows.evaluate import evaluate
@@ -17,7 +18,7 @@ from flows.synth import synth
 from flows.teachers import teachers
 from schemas.vocabulary import Origin, Source
 from touch2robot.config import load_profile
-from touch2robot.report import as_text
+from touch2robot.report import as_text, pooled_policy
 
 
 @flow(name="pipeline", log_prints=True)
@@ -91,26 +92,27 @@ def headline(results: dict) -> list[tuple[str, str]]:
     for row in results.get("teachers") or []:
         by_method.setdefault(row["method"], []).append(row)
     for method, rows in by_method.items():
-        figures = f"{len(rows)} tasks"
+        seeds = sorted({r["seed"] for r in rows})
+        figures = f"{len({r['task'] for r in rows})} tasks" + (f" x {len(seeds)} seeds" if len(seeds) > 1 else "")
         if rows[0]["origin"] == Origin.TEACHER:
             figures += f", {rows[0]['iterations']} iterations"
         success, f1 = fmean(r["success_rate"] for r in rows), fmean(r["contact_f1"] for r in rows)
         lines.append((f"teachers: {method}", f"{figures}, success {success:.2f}, contact F1 {f1:.3f} (task means)"))
     student = results.get("student") or {}
-    heldout: dict[str, list[dict]] = {}
+    heldout: dict[tuple[str, int], list[dict]] = {}
     for row in student.get("heldout", []):
-        heldout.setdefault(row["variant"], []).append(row)
+        heldout.setdefault((row["variant"], row["seed"]), []).append(row)
     for trained in student.get("trained", []):
         figures = f"{trained['steps']} updates, val loss {trained['initial_val_loss']:.4f} -> "
         figures += f"{trained['final_val_loss']:.4f}"
-        if rows := heldout.get(trained["variant"]):
+        if rows := heldout.get((trained["variant"], trained["seed"])):
             joint, kinematic = (
                 fmean(r["joint_error_student"] for r in rows),
                 fmean(r["joint_error_kinematic"] for r in rows),
             )
             figures += f", joint error {joint:.4f} rad (kinematic {kinematic:.4f})"
             figures += f", contact F1 {fmean(r['contact_f1'] for r in rows):.3f}"
-        lines.append((f"student: {trained['variant']}", figures))
+        lines.append((f"student: {trained['variant']} seed {trained['seed']}", figures))
     if replayed := results.get("replay"):
         figures = f"{replayed['replayed']} replayed on the twin, {replayed['skipped']} skipped"
         figures += f", {replayed['failed']} failed"
@@ -121,10 +123,12 @@ def headline(results: dict) -> list[tuple[str, str]]:
         lines += [(f"evaluate: {scope}" if k == 0 else "", _compared(r)) for k, r in enumerate(rows)]
     if not evaluated.get("f1_compared") and (f1_by_source := evaluated.get("f1")):
         lines.append(("evaluate", "contact F1 " + ", ".join(f"{k} {v:.3f}" for k, v in f1_by_source.items())))
-    for row in results.get("policy") or []:
-        figures = f"success {row['successes']}/{row['episodes']} [{row['ci_low']:.2f}, {row['ci_high']:.2f}]"
-        figures += f", progress {row['mean_progress']:.2f}, final loss {row['final_loss']:.4f}"
-        lines.append((f"policy: {row['task']} x {row['method']}", figures))
+    if policies := results.get("policy"):
+        rows = pd.DataFrame(policies)
+        for row in pooled_policy(rows, sorted(set(rows["seed"]))).to_dict("records"):
+            figures = f"success {row['successes']}/{row['episodes']} [{row['ci_low']:.2f}, {row['ci_high']:.2f}]"
+            figures += f" (seeds {row['seeds']} pooled)" if "," in row["seeds"] else ""
+            lines.append((f"policy: {row['task']} x {row['method']}", figures))
     if reported := results.get("report"):
         verdicts = [c["verdict"] for c in reported["claims"]]
         counted = ", ".join(

@@ -58,11 +58,16 @@ def _learning_curves(layout: DataLayout) -> pd.DataFrame:
             if metric not in run.data.metrics or series not in tags:  # e.g. the kinematic replays' runs
                 continue
             label = tags[panel] if panel else "all"
+            seed = tags.get("seed", "all")
             rows += [
-                {"stage": stage, "panel": label, "series": tags[series], "step": m.step, "value": m.value}
+                {"stage": stage, "panel": label, "series": tags[series], "seed": seed, "step": m.step, "value": m.value}
                 for m in client.get_metric_history(run.info.run_id, metric)
             ]
-    return pd.DataFrame(rows, columns=["stage", "panel", "series", "step", "value"])
+    curves = pd.DataFrame(rows, columns=["stage", "panel", "series", "seed", "step", "value"])
+    # one line per seed where a stage ran several (one line through all of them would zigzag)
+    swept = curves.groupby("stage")["seed"].transform("nunique") > 1
+    curves.loc[swept, "series"] = curves.loc[swept, "series"] + " seed " + curves.loc[swept, "seed"]
+    return curves.drop(columns="seed")
 
 
 @task(**ALWAYS_RUN)

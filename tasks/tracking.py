@@ -142,7 +142,10 @@ def stage_run(
         with mlflow.start_run(run_id=run_id) as run:
             yield run
         return
-    with mlflow.start_run(experiment_id=exp, run_name=run_name, tags={**provenance_tags(stage), **(tags or {})}) as run:
+    # a run of no single sweep seed (an ingest, a summary, the report) is tagged seed "all", so that
+    # filtering MLflow's runs on the seed tag never drops one silently
+    tags = {**provenance_tags(stage), "seed": "all", **(tags or {})}
+    with mlflow.start_run(experiment_id=exp, run_name=run_name, tags=tags) as run:
         yield run
 
 

@@ -98,6 +98,8 @@ def test_a_column_no_file_holds_yet_reads_as_null(tmp_path: Path) -> None:
         "n_paired": 0,
         "confidence": 0.95,
         "n_resamples": 100,
+        "seeds": "0",
+        "seeds_missing": "",
     }
     old = pa.Table.from_pylist([row], schema=schema).drop_columns(["variant"])
     lake_io.write_atomic(old, lake_io.file_path(layout.lake, "comparison", "human__real"))

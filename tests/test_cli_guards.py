@@ -48,3 +48,28 @@ def test_a_second_writing_command_on_a_held_folder_refuses_naming_the_holder(tmp
     from tasks.logs import LOG_FILE_ENV
 
     assert LOG_FILE_ENV not in os.environ
+
+
+@pytest.mark.parametrize(
+    ("arguments", "profile", "message"),
+    [
+        (["--seeds", "0"], None, "Invalid value for '--seeds': Input should be greater than or equal to 1"),
+        (["--seeds", "-2"], None, "Invalid value for '--seeds'"),
+        ([], "seeds: [0, 2, 2]\n", "bad profile: .*seeds: Value error, seed 2 is given 2 times"),
+        ([], "seeds: [-1]\n", "bad profile: .*seeds: Value error, seeds are whole numbers >= 0, got -1"),
+    ],
+)
+def test_a_bad_seed_list_is_refused_before_any_compute(
+    tmp_path: Path, arguments: list[str], profile: str | None, message: str
+) -> None:
+    import re
+
+    data = tmp_path / "data"
+    chosen = []
+    if profile is not None:
+        (tmp_path / "sweep.yaml").write_text("name: sweep\n" + profile)
+        chosen = ["--profile", str(tmp_path / "sweep.yaml")]
+    result = runner.invoke(app, ["run", "--data", str(data), *chosen, *arguments])
+    assert result.exit_code == 2
+    assert re.search(message, _said(result)), _said(result)
+    assert not data.exists()  # nothing was made: not even the data folder

@@ -200,3 +200,29 @@ def test_a_student_ablation_is_compared_with_its_full_model_on_the_same_demonstr
     stated = [c for c in claims(table, pd.DataFrame(columns=["task", "method"]), "a") if "ablation" in c.statement]
     assert [c.verdict for c in stated if " F1 " in c.statement] == ["holds"]
     assert stated[0].statement.startswith("touch2robot's full student has a higher F1 than its no_tactile ablation")
+
+
+def test_seeds_pool_into_each_demonstration_and_a_cell_says_which_seeds_it_lacks() -> None:
+    """Three seeds of two methods; dexmachina lacks seed 2 on rotate. A demonstration's counts are summed over
+    the seeds it has (so its scores are those of the pooled counts), and every row names its seeds."""
+    skills = {"touch2robot": 0.8, "dexmachina": 0.5}
+    by_seed = [comparison_clusters(skills, seed=s).assign(seed=s) for s in (0, 1, 2)]
+    clusters = pd.concat(by_seed, ignore_index=True)
+    lacking = (clusters["method"] == "dexmachina") & (clusters["task"] == "rotate") & (clusters["seed"] == 2)
+    clusters = clusters[~lacking]
+    table = comparison_table(clusters, versus="touch2robot", n_resamples=200, seeds=(0, 1, 2))
+    f1 = table[table["metric"] == "f1"].set_index(["method", "task"])
+    assert f1.loc[("touch2robot", ALL), "seeds"] == "0,1,2" and f1.loc[("touch2robot", ALL), "seeds_missing"] == ""
+    assert (
+        f1.loc[("dexmachina", "rotate"), "seeds"] == "0,1" and f1.loc[("dexmachina", "rotate"), "seeds_missing"] == "2"
+    )
+    assert f1.loc[("dexmachina", "pick"), "seeds_missing"] == ""
+    assert f1.loc[("dexmachina", ALL), "seeds"] == "0,1,2"  # over all tasks it has every seed somewhere
+    pooled = clusters[clusters["method"] == "touch2robot"][["tp", "fp", "fn"]].sum()
+    assert f1.loc[("touch2robot", ALL), "estimate"] == pytest.approx(
+        2 * pooled["tp"] / (2 * pooled["tp"] + pooled["fp"] + pooled["fn"])
+    )
+    assert f1.loc[("touch2robot", ALL), "n_demonstrations"] == 20  # demonstrations, not demonstrations x seeds
+    # a seed the sweep asked for and nobody has is missing everywhere
+    wider = comparison_table(clusters, versus="touch2robot", n_resamples=200, seeds=(0, 1, 2, 3))
+    assert set(wider.loc[wider["method"] == "touch2robot", "seeds_missing"]) == {"3"}

@@ -42,6 +42,10 @@ def test_paper_profile_is_the_code_defaults() -> None:
         ("twin:\n  friction_scale: [true, 1.0]\n", "twin.friction_scale.0: expected a number, got True"),
         ("replay:\n  demos_per_task: 0\n", "replay.demos_per_task"),
         ("replay:\n  touch2robot_origin: kinematic\n", "replay.touch2robot_origin"),
+        ("seeds: [0, 1, 1]\n", "seeds: Value error, seed 1 is given 2 times"),
+        ("seeds: [0, -3]\n", "seeds: Value error, seeds are whole numbers >= 0, got -3"),
+        ("seeds: []\n", "seeds: Value error, give at least one seed"),
+        ("seeds: [0, true]\n", "seeds.1: expected a number, got True"),
     ],
 )
 def test_bad_profile_names_file_and_field(tmp_path: Path, text: str, message: str) -> None:
@@ -55,3 +59,20 @@ def test_bad_profile_names_file_and_field(tmp_path: Path, text: str, message: st
 def test_unknown_profile_name() -> None:
     with pytest.raises(ProfileError, match="unknown profile 'tiny'"):
         load_profile("tiny")
+
+
+def test_a_sweep_seed_moves_every_stochastic_stage_and_keeps_the_held_out_split() -> None:
+    profile = load_profile("smoke")
+    assert profile.seeds == (0,) and profile.for_seed(0) == profile  # seed 0 is the profile as written
+    second = profile.for_seed(2)
+    assert second.teacher.seed == profile.teacher.seed + 2
+    assert second.student.seed == profile.student.seed + 2
+    assert second.replay.seed == profile.replay.seed + 2
+    assert second.policy.seed == profile.policy.seed + 2
+    # two seeds' evaluation episodes never coincide: whole episode sets apart
+    assert second.policy.eval_seed == profile.policy.eval_seed + 2 * profile.policy.eval_episodes
+    assert second.synth == profile.synth and second.retarget == profile.retarget and second.contacts == profile.contacts
+    assert profile.sweep([3, 1]) == (3, 1) and profile.sweep(None) == (0,)
+    for bad, message in (([1, 1], "seed 1 is given 2 times"), ([-1], "whole numbers >= 0"), ([], "at least one")):
+        with pytest.raises(ValueError, match=rf"--seeds: .*{message}"):
+            profile.sweep(bad)

@@ -95,7 +95,7 @@ def test_real_contacts_from_twintac_and_fsr(replay_data: Path, ingested) -> None
         assert link.reference is not None
         assert (df.reference_id == link.reference["recording_id"]).all()
         rollout = pq.read_table(
-            replay_data / "lake" / "rollouts" / "method=touch2robot" / f"teacher-{link.replay['task']}.parquet"
+            replay_data / "lake" / "rollouts" / "method=touch2robot" / f"teacher-{link.replay['task']}-seed0.parquet"
         ).to_pandas()
         force = np.stack(rollout["region_force"].to_numpy())
         for r, region in enumerate(ROBOT_REGIONS):

@@ -201,3 +201,18 @@ def test_readiness_finds_the_retargeted_and_taught_demonstrations(demo_lake: Pat
     assert ds.taught_demonstrations(lake, "touch2robot", 0) == [second]
     assert ds.taught_demonstrations(lake, "touch2robot", 1) == []  # another seed's teacher has not run
     assert ds.taught_demonstrations(lake, "contrack", 0) == []
+
+
+def test_a_file_from_before_the_seeds_is_named_before_a_stage_reads_it_twice(tmp_path: Path) -> None:
+    """A contacts file named as before the sweep seeds would be read beside its seed-0 successor: the check the
+    evaluation makes first names it and the spelling it should have."""
+    lake = tmp_path / "lake"
+    rows = pa.table({"x": [1]})
+    for name in ("teacher-contrack-seed0", "teacher-contrack"):
+        path = lake / "contacts" / "source=sim" / "task=pick" / f"{name}.parquet"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        pq.write_table(rows, path)
+    with pytest.raises(ds.DatasetIdError, match=r"teacher-contrack.parquet: .*\{origin\}-\{method\}-seed\{seed\}"):
+        ds.check_ids(lake, ("contacts", "rollouts"))
+    (lake / "contacts" / "source=sim" / "task=pick" / "teacher-contrack.parquet").unlink()
+    ds.check_ids(lake, ("contacts", "rollouts"))

@@ -404,7 +404,7 @@ def test_flow_rerun_replaces_and_follows_the_sources(evaluated: tuple[Path, dict
         lake_io.write_rows(
             lake,
             "contacts",
-            f"sim-{task}",
+            "teacher-contrack-seed0",  # a teacher's contacts, as the teachers stage names them
             pa.Table.from_pandas(rows, preserve_index=False),
             {"source": "sim", "task": str(task)},
         )

@@ -103,6 +103,7 @@ def _generate(seed: int) -> pd.DataFrame:
     frames.append(_evaluated(rng, "sim", "m_a", "sim_orphan", None, "h_missing", "pick", "s1"))
     df = pd.concat(frames, ignore_index=True)
     df["value"] = rng.random(len(df)).astype(np.float32)
+    df["seed"] = np.where(df["source"] == "human", np.nan, 0)  # the glove's rows have no sweep seed
     return df[CONTACTS_SCHEMA.names]
 
 

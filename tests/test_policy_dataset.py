@@ -102,7 +102,9 @@ def test_one_episode_per_demonstration_and_the_same_demonstrations_for_every_met
         repeats,
     )
     assert [r.rollout_id for r in read_rollouts(repeats, references=["scripted-000"])] == ["teacher-contrack-pick-000"]
-    with pytest.raises(RolloutError, match=r"teacher-pick.parquet: no rollout follows demonstration\(s\) \['nobody'\]"):
+    with pytest.raises(
+        RolloutError, match=r"teacher-pick-seed0.parquet: no rollout follows demonstration\(s\) \['nobody'\]"
+    ):
         read_rollouts(teacher, references=["nobody"])
 
 

@@ -195,3 +195,26 @@ def test_a_batch_reads_back_whole_through_every_index(tmp_path: Path) -> None:
     raw = path.read_bytes()
     footer_at = len(raw) - 8 - (1 + 8 + 20)  # magic after it; opcode, length, two offsets and the CRC
     assert zlib.crc32(raw[footer.summary_start : footer_at + 1 + 8 + 16]) == footer.summary_crc
+
+
+def test_writers_on_several_threads_each_write_a_whole_file(tmp_path: Path) -> None:
+    """The replay stage writes recordings on several threads at once: each file reads back whole (a compressor
+    shared between writers corrupted chunks: "cannot compress: Src size is incorrect")."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    rng = np.random.default_rng(2)
+    rows = np.stack([np.frombuffer(cdr.encode_tactile(k, "twintac", rng.normal(size=16)), np.uint8) for k in range(50)])
+
+    def write(k: int) -> Path:
+        path = tmp_path / f"calib{k}.mcap"
+        with RecordingWriter(path, "robot_calibration", {}, chunk_size=2048) as w:
+            for batch in range(40):
+                stamps = 10**9 * k + batch * 50 + np.arange(50)
+                w.write_batch([("/twintac/raw", stamps, rows)], np.stack([np.zeros(50, int), np.arange(50)], 1))
+        return path
+
+    with ThreadPoolExecutor(4) as pool:
+        paths = list(pool.map(write, range(8)))
+    for path in paths:
+        with open(path, "rb") as f:
+            assert sum(1 for _ in make_reader(f, validate_crcs=True).iter_messages()) == 40 * 50

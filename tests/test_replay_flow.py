@@ -88,6 +88,25 @@ def test_a_rerun_is_served_from_the_cache(replayed: tuple[DataLayout, dict]) -> 
     assert again["by_task_method"] == first["by_task_method"]
 
 
+def test_a_second_seed_adds_its_own_replays_and_leaves_the_first_seeds_cached(
+    replayed: tuple[DataLayout, dict],
+) -> None:
+    """Seed 1 has no rollouts yet: every one of its cells is skipped with the reason, while seed 0's replays are
+    served from the cache, untouched; the replays table holds both seeds."""
+    from flows.replay import replay
+
+    layout, first = replayed
+    files = sorted(layout.recordings.glob("*_replay.mcap"))
+    stamps = [p.stat().st_mtime_ns for p in files]
+    swept = replay(profile="smoke", data=str(layout.root), tasks=["pick", "wipe"], seeds=[0, 1])
+    assert [p.stat().st_mtime_ns for p in files] == stamps and sorted(layout.recordings.glob("*_replay.mcap")) == files
+    assert swept["replayed"] == first["replayed"]
+    rows = _sql(layout, "SELECT seed, status, count(*) FROM replays GROUP BY ALL ORDER BY ALL")
+    assert rows == [(0, "replayed", 3), (0, "skipped", 5), (1, "skipped", 8)]
+    (reason,) = _sql(layout, "SELECT reason FROM replays WHERE seed = 1 AND task = 'pick' AND method = 'contrack'")[0]
+    assert reason == "no teacher rollouts of contrack on pick (teacher-pick-seed1.parquet)"
+
+
 def test_replays_of_a_session_from_another_folder_are_written_and_ingested_there(
     replay_data: Path, tmp_path: Path
 ) -> None:

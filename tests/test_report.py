@@ -239,3 +239,30 @@ def test_each_replayed_demonstration_gets_its_methods_contact_timelines_side_by_
     page = render_html(dataclasses.replace(data, figures=figures), "touch2robot")
     assert page.count("<img") == 2 and "Contact timelines: wipe, demonstration d7" in page
     assert "## Contact timelines: pick, demonstration d1" in render_markdown(data, "touch2robot")
+
+
+def test_a_figure_pooled_over_fewer_seeds_than_the_sweep_says_so_in_its_cell() -> None:
+    """A three-seed sweep where dexmachina's rotate results lack seed 2 and contrack's pick policy lacks seed 1:
+    the report scores them on the seeds they have and says which are missing, cell by cell; the other cells
+    say nothing."""
+    from touch2robot.report import ReportData, pooled_policy, render_markdown
+
+    skills = {"touch2robot": 0.8, "dexmachina": 0.5}
+    clusters = pd.concat([comparison_clusters(skills, seed=s).assign(seed=s) for s in (0, 1, 2)], ignore_index=True)
+    clusters = clusters[
+        ~((clusters["method"] == "dexmachina") & (clusters["task"] == "rotate") & (clusters["seed"] == 2))
+    ]
+    comparison = comparison_table(clusters, versus="touch2robot", n_resamples=200, seeds=(0, 1, 2))
+    policy = pd.concat([_policy_rows().assign(seed=s) for s in (0, 1, 2)], ignore_index=True)
+    policy = policy[~((policy["method"] == "contrack") & (policy["task"] == "pick") & (policy["seed"] == 1))]
+    study = SCHEMAS["user_study"].empty_table().to_pandas()
+    text = render_markdown(ReportData(comparison, policy, study, {"profile": "test"}, seeds=(0, 1, 2)), "touch2robot")
+    f1_rows = [line for line in text.splitlines() if line.startswith("| dexmachina |") and "(seed 2 missing)" in line]
+    assert f1_rows, text  # the rotate cell
+    assert not [line for line in text.splitlines() if line.startswith("| touch2robot |") and "missing" in line]
+    (contrack_pick,) = [line for line in text.splitlines() if line.startswith("| pick | contrack |")]
+    assert "4/20" in contrack_pick and "(seed 1 missing)" in contrack_pick and "| 0,2 |" in contrack_pick
+    pooled = pooled_policy(policy, (0, 1, 2)).set_index(["task", "method"])
+    low, high = wilson_interval(27, 30)  # touch2robot on pick: 9/10 in each of three seeds
+    assert pooled.loc[("pick", "touch2robot"), ["successes", "episodes"]].tolist() == [27, 30]
+    assert pooled.loc[("pick", "touch2robot"), ["ci_low", "ci_high"]].tolist() == pytest.approx([low, high])

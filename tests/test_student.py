@@ -14,7 +14,7 @@ import pyarrow.parquet as pq
 import pytest
 import torch
 
-from schemas.tables import SCHEMAS
+from schemas.tables import unseeded
 from touch2robot import lake as lake_io
 from touch2robot.datasets import with_seed
 from touch2robot.ingest import recording_rows
@@ -140,7 +140,7 @@ def test_paired_steps_follow_the_teacher(student_lake: Path, references: dict) -
 def test_augmentation_shares_the_noise_and_is_seeded(student_lake: Path, references: dict) -> None:
     seqs = paired_sequences(_teacher_rows(student_lake, "drawer"), references, 0.5)
     table = augment(seqs, 7, 0.1, seed=3)
-    assert table.schema == SCHEMAS["student_dataset"]
+    assert table.schema == unseeded("student_dataset")  # the stage adds the sweep seed
     ids = table["sample_id"].unique().to_pylist()
     assert len(ids) == 7 and table["augment"].to_pylist()[-1] == 3  # 2 unchanged, then copies
     inputs, targets = ro.column(table, "kinematic_joints"), ro.column(table, "target_joints")
@@ -348,7 +348,7 @@ def test_student_flow_end_to_end(student_lake: Path, tmp_path: Path) -> None:
     assert len(train_rows["sample_id"].unique()) == 16  # balanced over the 3 trained tasks; drawer validates
     for task in TASKS:
         assert lake_io.file_path(layout.lake, "rollouts", f"student-{task}-seed0", {"method": "touch2robot"}).is_file()
-        assert lake_io.file_path(layout.lake, "student_predictions", f"touch2robot-{task}").is_file()
+        assert lake_io.file_path(layout.lake, "student_predictions", f"touch2robot-{task}-seed0").is_file()
     assert "reconstructed" in evaluated_sources(layout.lake)
     metrics = contact_metrics_table(read_contacts(layout.lake, ["human", "reconstructed"]), "reconstructed")
     assert set(metrics["method"]) == {"touch2robot"} and metrics["n"].sum() > 0

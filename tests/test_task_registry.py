@@ -103,7 +103,7 @@ tracker.reset(np.arange(2), demo.object_pos[[0, 0]], demo.object_quat[[0, 0]])
 tracker.update(demo.object_pos[[0, -1]], demo.object_quat[[0, -1]], np.zeros(2))
 rollouts = data / "lake" / "rollouts" / "method=touch2robot"
 rollouts.mkdir(parents=True)
-(rollouts / "kinematic-slide.parquet").touch()
+(rollouts / "kinematic-slide-seed0.parquet").touch()
 print(json.dumps({
     "tasks": scenes.TASKS,
     "synth_default": SynthConfig().tasks,

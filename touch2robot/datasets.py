@@ -277,6 +277,14 @@ class LakeTable:
                 raise DatasetIdError(f"{path}: {e}") from None
 
 
+def check_ids(lake: Path, tables: Iterable[str]) -> None:
+    """Every file of ``tables`` named as its table names files, or :class:`DatasetIdError` naming the first
+    that is not (e.g. a file written before the sweep seeds, which a stage would otherwise read twice over)."""
+    for name in tables:
+        for _ in LAKE[name].entries(lake):
+            pass
+
+
 # the tables ingestion writes, one file per recording
 _RECORDING_TABLES = (
     *("recordings", "taxels", "hand_joints", "hand_keypoints", "wrist_pose", "object_pose"),

@@ -190,8 +190,8 @@ def contact_metrics_table(contacts: pd.DataFrame, eval_source: str, reference: s
         reference: the reference source.
 
     Returns:
-        Columns as ``schemas.tables.contact_metrics`` but its ``seed`` (the caller's), sorted by method, task, region; empty
-        when nothing of ``eval_source`` aligns with the reference.
+        Columns as ``schemas.tables.contact_metrics`` but its ``seed`` (the caller's), sorted by method,
+        task, region; empty when nothing of ``eval_source`` aligns with the reference.
     """
     names = unseeded("contact_metrics").names
     counts = contact_counts_long(contacts, ref_source=reference, eval_source=eval_source)
@@ -318,8 +318,8 @@ def onset_errors_table(
     N = 0), N in ``n`` and the missing-onset counts; their onset and flag columns are NULL.
 
     Returns:
-        Columns as ``schemas.tables.onset_errors`` but its ``seed`` (the caller's): pair rows sorted by method, task, sequence,
-        region order, then the summaries; empty when ``eval_source`` has no rows.
+        Columns as ``schemas.tables.onset_errors`` but its ``seed`` (the caller's): pair rows sorted by
+        method, task, sequence, region order, then the summaries; empty when ``eval_source`` has no rows.
     """
     names = unseeded("onset_errors").names
     if not (contacts["source"] == eval_source).any():
@@ -426,7 +426,8 @@ def heldout_demonstration_sums(
     the full model's (:func:`demonstration_sums`)."""
     human = read_contacts(lake, [Source.HUMAN], task=task)
     scored = pd.concat(
-        [human[human["reference_id"].isin(list(held_out))], reconstructed[list(CONTACT_COLUMNS)]], ignore_index=True
+        [human[human["reference_id"].isin(list(held_out))], reconstructed.reindex(columns=list(CONTACT_COLUMNS))],
+        ignore_index=True,
     )
     no_time_map = SCHEMAS["time_map"].empty_table().to_pandas()  # a reconstruction carries t_ref already
     onsets = onset_errors_table(scored, no_time_map, Source.RECONSTRUCTED)

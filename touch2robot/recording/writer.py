@@ -53,7 +53,6 @@ _MESSAGE_FIELDS = _MESSAGE_HEAD.size - 9  # the record length counts what follow
 _MESSAGE_DTYPE = np.dtype(
     [("opcode", "u1"), ("length", "<u8"), ("channel", "<u2"), ("sequence", "<u4"), ("log", "<u8"), ("pub", "<u8")]
 )
-_COMPRESSOR = zstandard.ZstdCompressor()  # mcap's Writer uses zstandard.compress: the default level, 3
 
 
 class _OpenChunk:
@@ -114,6 +113,9 @@ class RecordingWriter:
         self._schemas: list[Schema] = []
         self._channel_records: list[Channel] = []
         self._chunk = _OpenChunk()
+        # one per writer: a compressor is not thread-safe (the replay stage writes on several threads); the
+        # default level, 3, as mcap's Writer (zstandard.compress)
+        self._compressor = zstandard.ZstdCompressor()
         self._chunk_indexes: list[ChunkIndex] = []
         self._metadata_indexes: list[MetadataIndex] = []
         self._message_counts: dict[int, int] = {}
@@ -219,7 +221,7 @@ class RecordingWriter:
         first = not self._message_counts
         self._start, self._end = (start, end) if first else (min(self._start, start), max(self._end, end))
         data = b"".join(chunk.records)
-        compressed = _COMPRESSOR.compress(data)
+        compressed = self._compressor.compress(data)
         builder = RecordBuilder()
         Chunk(
             compression="zstd",
