@@ -282,10 +282,11 @@ def _score_sections(comparison: pd.DataFrame) -> list[Section]:
     return sections
 
 
-def _policy_section(policy: pd.DataFrame) -> Section | None:
+def _policy_section(policy: pd.DataFrame) -> Section:
     """``policy``: pooled over the seeds (:func:`pooled_policy`)."""
     if policy.empty:
-        return None
+        note = "no policy results in the catalog yet: `touch2robot policy` trains and evaluates them"
+        return Section("Policy success (closed loop)", [], [], note=note)
     rows = [
         [
             r["task"],
@@ -358,8 +359,8 @@ def _curve_sections(curves: pd.DataFrame) -> list[Section]:
 
 def _sections(data: ReportData) -> list[Section]:
     found = _score_sections(data.comparison)
-    policy = _policy_section(pooled_policy(data.policy, data.seeds))
-    found += [s for s in (policy, _user_study_section(data.user_study)) if s is not None]
+    found.append(_policy_section(pooled_policy(data.policy, data.seeds)))
+    found += [s for s in (_user_study_section(data.user_study),) if s is not None]
     return found + _timeline_sections(data.timelines) + _curve_sections(data.curves)
 
 
