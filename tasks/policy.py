@@ -217,7 +217,7 @@ def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: s
         "replans": result.replans,
         "mlflow_run": trained["mlflow_run"],
     }
-    key = datasets.SeededMethodTaskKey(trained["method"], trained["task"], str(trained["seed"]))
+    key = datasets.MethodTaskKey(trained["method"], trained["task"], str(trained["seed"]))
     datasets.POLICY_EVAL.write(layout.lake, key, pa.Table.from_pylist([row]))
     tracking.experiment(layout, "policy")
     with mlflow.start_run(run_id=trained["mlflow_run"]):

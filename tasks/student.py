@@ -119,7 +119,7 @@ def augment_dataset(
         val = [s for s in seqs if s.reference_id in split["val"].get(task_name, [])]
         count = counts.get(task_name, 0)
         table = augment(train, count, config.joint_noise_std, config.seed, val)
-        key = datasets.SeededTaskKey(task_name, str(seed))
+        key = datasets.TaskKey(task_name, str(seed))
         path = datasets.STUDENT_DATASET.write(layout.lake, key, datasets.with_seed(table, seed))
         paths[task_name] = str(path)
         manifest["tasks"][task_name] = {
@@ -324,7 +324,7 @@ def reconstruct(
                 task=task_name,
             )
             predictions = datasets.with_seed(result.predictions, seed)
-            key = datasets.SeededMethodTaskKey(method, task_name, str(seed))
+            key = datasets.MethodTaskKey(method, task_name, str(seed))
             datasets.STUDENT_PREDICTIONS.write(lake, key, predictions)
         with mlflow.start_run(run_id=trained["mlflow_run"]):
             mlflow.log_metrics({f"heldout/{task_name}/{k}": v for k, v in result.figures.items() if v == v})

@@ -28,12 +28,10 @@ ROUND_TRIPS = [
     (ds.ROLLOUT_CONTACTS_ID, ds.RolloutContactsKey("student", "touch2robot", "3"), "student-touch2robot-seed3"),
     # a method whose name looks like a seed still reads back to itself
     (ds.ROLLOUT_CONTACTS_ID, ds.RolloutContactsKey("teacher", "a-seed1", "2"), "teacher-a-seed1-seed2"),
-    (ds.TASK_ID, ds.TaskKey("wipe"), "wipe"),
-    (ds.SEEDED_TASK_ID, ds.SeededTaskKey("wipe", "1"), "wipe-seed1"),
-    (ds.METHOD_TASK_ID, ds.MethodTaskKey("dex-retargeting", "rotate"), "dex-retargeting-rotate"),
+    (ds.TASK_ID, ds.TaskKey("wipe", "1"), "wipe-seed1"),
     (
-        ds.SEEDED_METHOD_TASK_ID,
-        ds.SeededMethodTaskKey("dex-retargeting", "rotate", "0"),
+        ds.METHOD_TASK_ID,
+        ds.MethodTaskKey("dex-retargeting", "rotate", "0"),
         "dex-retargeting-rotate-seed0",
     ),
     (ds.TEACHER_RUN_ID, ds.TeacherRunKey("pick", "contrack", "0123456789ab"), "pick-contrack-0123456789ab"),
@@ -66,8 +64,8 @@ def test_every_id_format_builds_and_parses_back(fmt: ds.IdFormat, key: tuple, fi
         # a file from before the sweep seeds: named, with what it should be
         (ds.ROLLOUTS_ID, "teacher-pick", r"'teacher-pick' is not a .*seed a sweep seed"),
         (ds.ROLLOUTS_ID, "teacher-pick-seed01", r"seed a sweep seed \(a whole number >= 0\)"),
-        (ds.METHOD_TASK_ID, "touch2robot", r"'touch2robot' is not a \{method\}-\{task\} id"),
-        (ds.TASK_ID, "Pick", r"'Pick' is not a \{task\} id"),
+        (ds.METHOD_TASK_ID, "touch2robot-seed0", r"'touch2robot-seed0' is not a \{method\}-\{task\}-seed\{seed\} id"),
+        (ds.TASK_ID, "Pick-seed0", r"'Pick-seed0' is not a \{task\}-seed\{seed\} id"),
         (ds.TEACHER_RUN_ID, "pick-contrack-xyz", r"config 12 hex digits"),
         (ds.RECORDING_ID, ".hidden", r"'.hidden' is not a \{recording_id\} id"),
         (ds.RECORDING_ID, "a/b", r"'a/b' is not a \{recording_id\} id"),
@@ -88,7 +86,7 @@ def test_a_mistyped_key_fails_naming_the_table_and_the_field(tmp_path: Path) -> 
     with pytest.raises(ds.DatasetIdError, match=r"seed '-1' is not a sweep seed"):
         ds.ROLLOUTS_ID.build(ds.rollouts_key("teacher", "pick", -1))
     with pytest.raises(ds.DatasetIdError, match=r"method 'a/b' is not a name"):
-        ds.METHOD_TASK_ID.build(ds.MethodTaskKey("a/b", "pick"))
+        ds.METHOD_TASK_ID.build(ds.MethodTaskKey("a/b", "pick", "0"))
     with pytest.raises(ValueError, match=r"partitioned by \('method',\)"):
         ds.ROLLOUTS.path(tmp_path, ds.rollouts_key("teacher", "pick", 0))
 
@@ -122,9 +120,9 @@ def test_lake_paths_are_the_documented_ones(tmp_path: Path) -> None:
     assert sim == lake / "contacts/source=sim/task=wipe/teacher-contrack-seed1.parquet"
     human = ds.human_contacts(lake, {"recording_id": "0123456789abcdef", "task": "pick"})
     assert human == lake / "contacts/source=human/task=pick/0123456789abcdef.parquet"
-    key = ds.SeededMethodTaskKey("contrack", "pick", "0")
+    key = ds.MethodTaskKey("contrack", "pick", "0")
     assert ds.POLICY_EVAL.path(lake, key) == lake / "policy_eval/contrack-pick-seed0.parquet"
-    assert ds.STUDENT_DATASET.path(lake, ds.SeededTaskKey("pick", "2")) == lake / "student_dataset/pick-seed2.parquet"
+    assert ds.STUDENT_DATASET.path(lake, ds.TaskKey("pick", "2")) == lake / "student_dataset/pick-seed2.parquet"
     layout = DataLayout(tmp_path)
     assert ds.policy_dataset(layout, "contrack", "pick", 1) == tmp_path / "datasets/contrack-pick-seed1"
     assert ds.lerobot_repo_id("contrack", "pick", 1) == "touch2robot/contrack-pick-seed1"

@@ -129,19 +129,10 @@ class RolloutContactsKey(NamedTuple):
 
 class TaskKey(NamedTuple):
     task: str
-
-
-class SeededTaskKey(NamedTuple):
-    task: str
     seed: str
 
 
 class MethodTaskKey(NamedTuple):
-    method: str
-    task: str
-
-
-class SeededMethodTaskKey(NamedTuple):
     method: str
     task: str
     seed: str
@@ -168,10 +159,8 @@ class PolicyRunKey(NamedTuple):
 RECORDING_ID = IdFormat(RecordingKey, "{recording_id}")
 ROLLOUTS_ID = IdFormat(RolloutsKey, "{origin}-{task}-seed{seed}", {"origin": ORIGIN, "task": TASK, "seed": SEED})
 ROLLOUT_CONTACTS_ID = IdFormat(RolloutContactsKey, "{origin}-{method}-seed{seed}", {"origin": ORIGIN, "seed": SEED})
-TASK_ID = IdFormat(TaskKey, "{task}", {"task": TASK})
-SEEDED_TASK_ID = IdFormat(SeededTaskKey, "{task}-seed{seed}", {"task": TASK, "seed": SEED})
-METHOD_TASK_ID = IdFormat(MethodTaskKey, "{method}-{task}", {"task": TASK})
-SEEDED_METHOD_TASK_ID = IdFormat(SeededMethodTaskKey, "{method}-{task}-seed{seed}", {"task": TASK, "seed": SEED})
+TASK_ID = IdFormat(TaskKey, "{task}-seed{seed}", {"task": TASK, "seed": SEED})
+METHOD_TASK_ID = IdFormat(MethodTaskKey, "{method}-{task}-seed{seed}", {"task": TASK, "seed": SEED})
 TEACHER_RUN_ID = IdFormat(TeacherRunKey, "{task}-{method}-{config}", {"task": TASK, "config": CONFIG_KEY})
 STUDENT_RUN_ID = IdFormat(StudentRunKey, "{variant}-{config}", {"config": CONFIG_KEY})
 POLICY_RUN_ID = IdFormat(
@@ -307,9 +296,9 @@ LAKE: dict[str, LakeTable] = {
     ),
     "retargeted": LakeTable("retargeted", RECORDING_ID),
     "rollouts": LakeTable("rollouts", ROLLOUTS_ID),
-    "student_dataset": LakeTable("student_dataset", SEEDED_TASK_ID),
-    "student_predictions": LakeTable("student_predictions", SEEDED_METHOD_TASK_ID),
-    "policy_eval": LakeTable("policy_eval", SEEDED_METHOD_TASK_ID),
+    "student_dataset": LakeTable("student_dataset", TASK_ID),
+    "student_predictions": LakeTable("student_predictions", METHOD_TASK_ID),
+    "policy_eval": LakeTable("policy_eval", METHOD_TASK_ID),
     "student_variants": LakeTable("student_variants", KeyedIdFormat(("method", "variant", "seed"))),
     **{name: LakeTable(name, ids) for name, ids in EVALUATION_IDS.items()},
 }
@@ -375,12 +364,12 @@ def student_checkpoints(layout: DataLayout, variant: str, config: str) -> Path:
 
 def policy_dataset(layout: DataLayout, method: str, task: str, seed: int) -> Path:
     """The LeRobot dataset of one task x method's robot demonstrations of sweep seed ``seed``."""
-    return layout.datasets / SEEDED_METHOD_TASK_ID.build(SeededMethodTaskKey(method, task, str(seed)))
+    return layout.datasets / METHOD_TASK_ID.build(MethodTaskKey(method, task, str(seed)))
 
 
 def lerobot_repo_id(method: str, task: str, seed: int) -> str:
     """LeRobot ``repo_id`` of a task x method x seed dataset (local only: never pushed)."""
-    return f"touch2robot/{SEEDED_METHOD_TASK_ID.build(SeededMethodTaskKey(method, task, str(seed)))}"
+    return f"touch2robot/{METHOD_TASK_ID.build(MethodTaskKey(method, task, str(seed)))}"
 
 
 def policy_training(layout: DataLayout, method: str, task: str, seed: int, config: str) -> Path:
