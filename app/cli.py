@@ -46,6 +46,12 @@ def _seeds(n: int | None) -> list[int] | None:
     return None if n is None else list(range(n))
 
 
+def _narrowed(task: list[str] | None, method: list[str] | None, seeds: int | None) -> dict[str, object]:
+    """A stage flow's ``tasks``, ``methods`` and ``seeds`` from ``--task``, ``--method`` and ``--seeds``
+    (None: the profile's)."""
+    return {"tasks": task or None, "methods": method or None, "seeds": _seeds(seeds)}
+
+
 @dataclass
 class _Session:
     command: str = "touch2robot"
@@ -289,9 +295,7 @@ def teachers(
         list,
         profile=profile,
         data=str(layout.root),
-        tasks=task or None,
-        methods=method or None,
-        seeds=_seeds(seeds),
+        **_narrowed(task, method, seeds),
     )
     _closing(layout, f"teachers ({profile})", {"teachers": rows})
 
@@ -358,9 +362,7 @@ def replay(
         dict,
         profile=profile,
         data=str(layout.root),
-        tasks=task or None,
-        methods=method or None,
-        seeds=_seeds(seeds),
+        **_narrowed(task, method, seeds),
     )
     _closing(layout, f"replay ({profile})", {"replay": result})
 
@@ -423,9 +425,7 @@ def policy(
         list,
         profile=profile,
         data=str(layout.root),
-        tasks=task or None,
-        methods=method or None,
-        seeds=_seeds(seeds),
+        **_narrowed(task, method, seeds),
     )
     table = Table(
         "task",

@@ -36,7 +36,8 @@ def student(
     split = None
     trained, rebuilt = [], []
     for seed in sweep:
-        config, teacher = prof.for_seed(seed).student, prof.for_seed(seed).teacher
+        seeded = prof.for_seed(seed)
+        config, teacher = seeded.student, seeded.teacher
         recordings = datasets.taught_demonstrations(layout.lake, config.teacher_method, seed)
         if not recordings:
             print(

@@ -217,17 +217,8 @@ def pool_seeds(metrics: pd.DataFrame, onset_summaries: pd.DataFrame) -> tuple[pd
     ratios recomputed from them; E weighted by each seed's valid pairs), ``seed`` NULL: the overall figures
     of a figure or summary that shows one bar per method."""
     keys = ["reference_source", "source", "method", "task", "region"]
-    counts = ["n_sequences", *COUNT_COLUMNS, "n"]
-    m = metrics.groupby(keys, as_index=False, sort=True)[counts].sum()
-    tp, fp, fn, tn = (m[c].to_numpy(dtype=np.float64) for c in COUNT_COLUMNS)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        m = m.assign(
-            precision=np.where(tp + fp > 0, tp / (tp + fp), np.nan),
-            recall=np.where(tp + fn > 0, tp / (tp + fn), np.nan),
-            f1=np.where(2 * tp + fp + fn > 0, 2 * tp / (2 * tp + fp + fn), np.nan),
-            fpr=np.where(fp + tn > 0, fp / (fp + tn), np.nan),
-            seed=None,
-        )
+    sizes = metrics.groupby(keys, as_index=False, sort=True)[["n_sequences", "n"]].sum()
+    m = contact_scores_table(metrics, by=keys).merge(sizes, on=keys).assign(seed=None)
     o = onset_summaries[onset_summaries["sequence_id"] == ALL]
     o = o.assign(error_sum=o["error_ms"].fillna(0.0) * o["n"])
     same = [*keys, "sequence_id", "subject", "reference_id"]
