@@ -55,7 +55,8 @@ def policy(
     report_policy(profile, rows)
     for r in rows:
         print(
-            f"policy {r['task']:>7} x {r['method']:<16} seed {r['seed']} ({r['origin']}): success "
+            f"policy {r['task']:>7} x {r['method']:<16} seed {r['seed']} ({r['origin']}, sees {r['observation']}): "
+            "success "
             f"{r['successes']}/{r['episodes']} = {r['success_rate']:.2f} [{r['ci_low']:.2f}, {r['ci_high']:.2f}], "
             f"progress {r['mean_progress']:.2f}, "
             f"demonstrations replayed {r['replay_successes']}/{r['episodes']}, "

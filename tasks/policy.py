@@ -30,7 +30,6 @@ POLICY_MODULES = (
     "touch2robot.lake",
     "touch2robot.datasets",
 )
-DATASET_FIELDS = ("image_size", "cameras", "max_rollouts", "same_demonstrations")
 TAGS_NOTE = "none: ResNet-18 trained from scratch (pretrained_backbone_weights=None, no downloads)"
 
 
@@ -91,10 +90,11 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -
 
     one_torch_thread()
     layout = DataLayout.from_env(data)
+    # the dataset's own settings (observation, image_size, cameras, ...) stay in: a training folder holds one
+    # dataset layout's checkpoints
     settings = config.model_dump(
         mode="json",
         exclude={
-            *DATASET_FIELDS,
             "keep_checkpoints",
             "eval_episodes",
             "eval_batch",
@@ -115,7 +115,8 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -
         "method": dataset["method"],
         "seed": str(dataset["seed"]),
         "origin": dataset["origin"],
-        "pretrained_backbone": TAGS_NOTE,
+        "observation": config.observation,
+        "pretrained_backbone": TAGS_NOTE if config.observation == "images" else "none: no cameras",
     }
     tracking.experiment(layout, "policy")
     if run_file.exists():
@@ -196,6 +197,7 @@ def evaluate_policy(trained: dict, config: PolicyConfig, sim: SimConfig, data: s
         "method": trained["method"],
         "seed": trained["seed"],
         "origin": trained["origin"],
+        "observation": config.observation,
         "profile": profile,
         "dataset_episodes": trained["episodes"],
         "dataset_frames": trained["frames"],

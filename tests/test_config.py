@@ -20,6 +20,23 @@ def test_paper_profile_is_the_code_defaults() -> None:
     assert paper.synth.subjects * paper.synth.demos_per_subject == 30
 
 
+def test_the_paper_policy_is_table_ix_whatever_the_small_profiles_do() -> None:
+    from touch2robot.policy.dataset import FPS, features
+    from touch2robot.policy.train import diffusion_kwargs
+
+    policy = load_profile("paper").policy
+    # Table IX: 20 Hz, 2 RGB views 224x224, 5 observation steps, horizon 24, 16 executed, Adam lr 1e-4,
+    # weight decay 1e-6, batch 64, 50,000 updates; everything else LeRobot's default
+    assert FPS == 20 and policy.observation == "images" and len(policy.cameras) == 2
+    views = [k for k, f in features(policy).items() if f["dtype"] == "image"]
+    assert len(views) == 2 and all(features(policy)[k]["shape"] == (224, 224, 3) for k in views)
+    assert (policy.n_obs_steps, policy.horizon, policy.n_action_steps) == (5, 24, 16)
+    assert (policy.lr, policy.weight_decay, policy.batch_size, policy.steps) == (1e-4, 1e-6, 64, 50_000)
+    assert policy.down_dims is None and policy.num_inference_steps is None and policy.scheduler_warmup_steps is None
+    assert "normalization_mapping" not in diffusion_kwargs(policy)  # LeRobot's own
+    assert load_profile("local").policy.observation == "state"  # the laptop's policy sees no camera
+
+
 @pytest.mark.parametrize(
     ("text", "message"),
     [

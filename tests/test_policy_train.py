@@ -15,7 +15,7 @@ from conftest import lerobot_frame, scripted_rollout_rows
 
 from touch2robot import lake as lake_io
 from touch2robot.config import load_profile
-from touch2robot.policy.dataset import build_dataset, read_rollouts, sources
+from touch2robot.policy.dataset import ENVIRONMENT_NAMES, build_dataset, read_rollouts, sources
 from touch2robot.policy.evaluate import action_fit, episode_starts, load_policy, replay_demonstrations, rollout_policy
 from touch2robot.policy.train import last_checkpoint, train
 from touch2robot.sim.config import SimConfig
@@ -199,6 +199,39 @@ def test_action_fit_compares_the_executed_steps_with_the_recorded_actions(traine
     assert fit.hold_wrist_err_mm == pytest.approx(1000 * np.concatenate(wrist).mean(), rel=1e-4)
     assert 0 < fit.joint_err_rad < np.inf and 0 < fit.wrist_err_mm < np.inf
     assert action_fit(policy, pre, post, Path(summary.root), summary.repo_id, frames=10_000) == fit  # seeded
+
+
+def test_a_state_policy_sees_no_camera_learns_and_runs_closed_loop_with_a_filmed_episode(
+    trained, tmp_path: Path
+) -> None:
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    summary, rollouts, _, _, _ = trained
+    cfg = CONFIG.model_copy(update={"observation": "state", "steps": 60})
+    sim = SimConfig(threads=1)
+    scene = build_scene("pick", sim)
+    state = build_dataset(tmp_path / "ds", "pick", "touch2robot", rollouts, scene, sim, cfg)
+    assert state.render_frames == 0 and state.frames == summary.frames
+    ds = LeRobotDataset(state.repo_id, root=state.root)  # LeRobot's own loader reads it
+    assert not ds.meta.camera_keys
+    assert ds.meta.features["observation.environment_state"]["names"] == list(ENVIRONMENT_NAMES["state"])
+    frame, r = lerobot_frame(ds, 31), rollouts[1]  # episode 1, step 1
+    np.testing.assert_allclose(frame["observation.environment_state"][8:15].numpy(), r.object_pose[1], atol=1e-5)
+    assert frame["observation.environment_state"][15] == 0  # no drawer in pick
+    np.testing.assert_allclose(frame["action"].numpy(), np.concatenate([r.joint_target[1], r.wrist_pose[1]]), atol=1e-6)
+    logs: list[float] = []
+    result = train(Path(state.root), state.repo_id, cfg, tmp_path / "out", on_log=lambda s, m: logs.append(m["loss"]))
+    assert result.last_loss < result.first_loss - 0.02, logs
+    policy, pre, post = load_policy(Path(result.policy_dir), "cpu")
+    environment = policy.config.env_state_feature
+    assert not policy.config.image_features and environment is not None and environment.shape == (16,)
+    assert policy.config.normalization_mapping["ENV"].value == "MIN_MAX"
+    starts = episode_starts(scene, rollouts, 2, seed=3, object_noise_m=cfg.object_noise_m)
+    out = rollout_policy(policy, pre, post, scene, sim, starts, cfg, video_episodes=1, steps=20)
+    assert out.replans == 2 and out.success.shape == (2,)
+    # no camera drives it, yet the profile's cameras film the recorded episode
+    assert len(out.videos) == 1 and out.videos[0].shape == (20, cfg.image_size, 2 * cfg.image_size, 3)
+    assert out.videos[0].std() > 1
 
 
 def test_replayed_demonstrations_reproduce_their_rollouts(tmp_path: Path) -> None:

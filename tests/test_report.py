@@ -45,6 +45,7 @@ def _policy_rows() -> pd.DataFrame:
                     "method": method,
                     "seed": 0,
                     "origin": "teacher",
+                    "observation": "images",
                     "profile": "smoke",
                     "dataset_episodes": 4,
                     "dataset_frames": 400,

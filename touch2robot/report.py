@@ -112,7 +112,17 @@ def pooled_policy(policy: pd.DataFrame, seeds: Iterable[int]) -> pd.DataFrame:
     the Wilson interval of the pooled rate, the seeds pooled and those of ``seeds`` with no row."""
     from touch2robot.comparison.statistics import wilson_interval
 
-    columns = ["task", "method", "successes", "episodes", "success_rate", "ci_low", "ci_high", "train_steps"]
+    columns = [
+        "task",
+        "method",
+        "observation",
+        "successes",
+        "episodes",
+        "success_rate",
+        "ci_low",
+        "ci_high",
+        "train_steps",
+    ]
     if policy.empty:
         return pd.DataFrame(columns=[*columns, "seeds", "seeds_missing"])
     swept = set(seeds)
@@ -125,6 +135,7 @@ def pooled_policy(policy: pd.DataFrame, seeds: Iterable[int]) -> pd.DataFrame:
             {
                 "task": task,
                 "method": method,
+                "observation": ", ".join(sorted(set(cell["observation"]))),
                 "successes": successes,
                 "episodes": episodes,
                 "success_rate": successes / episodes if episodes else float("nan"),
@@ -291,6 +302,7 @@ def _policy_section(policy: pd.DataFrame) -> Section:
         [
             r["task"],
             r["method"],
+            r["observation"],
             f"{r['successes']}/{r['episodes']}",
             f"{r['success_rate']:.2f} [{r['ci_low']:.2f}, {r['ci_high']:.2f}]{_missing(r)}",
             r["seeds"],
@@ -300,10 +312,12 @@ def _policy_section(policy: pd.DataFrame) -> Section:
     ]
     return Section(
         "Policy success (closed loop)",
-        ["task", "method", "successes", "rate [95 % Wilson]", "seeds", "updates"],
+        ["task", "method", "policy sees", "successes", "rate [95 % Wilson]", "seeds", "updates"],
         rows,
         figure="policy_success",
-        note="episodes of every seed's policy pooled",
+        note="episodes of every seed's policy pooled; a policy sees 'images' (Table IX: two camera views, the robot "
+        "state and the tactile forces) or 'state' (no cameras: the robot state, the tactile forces and the object's "
+        "pose)",
     )
 
 

@@ -39,6 +39,12 @@ class PolicyConfig(BaseModel):
         "every compared method of the task has: datasets that differ only in how each method turned the same human "
         "demonstrations into robot ones; false = every rollout of each method's file",
     )
+    observation: Literal["images", "state"] = Field(
+        default="images",
+        description="what the policy sees: 'images' = both camera views (Table IX), the robot state and the tactile "
+        "forces; 'state' = no cameras: the robot state, and the tactile forces with the object's pose and the drawer's "
+        "opening as observation.environment_state (no rendering and no image encoder: a CPU-sized policy)",
+    )
     # ResNet-18 (BatchNorm) needs feature maps larger than 1x1: below about 40 px training fails
     image_size: int = Field(default=224, ge=40, description="square RGB image side (px) of both camera views")
     cameras: tuple[str, ...] = Field(

@@ -3,11 +3,13 @@ replayed in MuJoCo and recorded at 20 Hz with LeRobot's own dataset API (v3.0 fo
 
 Features of every frame (one frame per control step, the observation before the step's command):
 
-- ``observation.images.<camera>``: RGB (H, W, 3) from the scene cameras, rendered headless.
+- ``observation.images.<camera>``: RGB (H, W, 3) from the scene cameras, rendered headless (only with
+  ``policy.observation: images``, Table IX's).
 - ``observation.state`` (23): the 16 LEAP joint positions (rad) and the wrist pose (px py pz qw qx
   qy qz) of the hand's free wrist joint.
-- ``observation.environment_state`` (8): the tactile region forces (N) on T1..T4, P1..P4 (LeRobot's
-  Diffusion Policy reads this key and ignores unknown ones).
+- ``observation.environment_state``: the tactile region forces (N) on T1..T4, P1..P4 (8); with
+  ``policy.observation: state`` also the object's pose (px py pz qw qx qy qz) and the drawer's opening (m),
+  16 in all (LeRobot's Diffusion Policy reads this key and ignores unknown ones).
 - ``action`` (23): the 16 joint targets and the commanded wrist pose. The LEAP hand sits on a
   floating (mocap) wrist, so a policy must command the wrist as well as the fingers: the action is
   the full command a rollout applied, and replaying actions reproduces the rollout.
@@ -52,6 +54,10 @@ ROBOT_TYPE = "leap_hand_floating_wrist"
 WRIST_NAMES = ("wrist_px", "wrist_py", "wrist_pz", "wrist_qw", "wrist_qx", "wrist_qy", "wrist_qz")
 STATE_NAMES = (*hd.JOINT_NAMES, *WRIST_NAMES)
 ACTION_NAMES = (*(f"{j}_target" for j in hd.JOINT_NAMES), *(f"{w}_cmd" for w in WRIST_NAMES))
+FORCE_NAMES = tuple(f"force_{r}" for r in ROBOT_REGIONS)
+OBJECT_NAMES = ("object_px", "object_py", "object_pz", "object_qw", "object_qx", "object_qy", "object_qz")
+# what observation.environment_state holds, per PolicyConfig.observation
+ENVIRONMENT_NAMES = {"images": FORCE_NAMES, "state": (*FORCE_NAMES, *OBJECT_NAMES, "drawer_opening")}
 # which rollouts of a task x method become its demonstrations, best first
 ORIGIN_PREFERENCE = (Origin.STUDENT, Origin.TEACHER, Origin.KINEMATIC)
 assert set(ORIGIN_PREFERENCE) == set(Origin)
@@ -244,6 +250,15 @@ def observation_state(env: BatchEnv) -> np.ndarray:
     return np.concatenate([env.hand_qpos, env.wrist_pose], axis=1)
 
 
+def environment_state(env: BatchEnv, observation: str) -> np.ndarray:
+    """(N, 8 | 16) ``observation.environment_state`` (``ENVIRONMENT_NAMES[observation]``): the tactile
+    region forces and, for a state-only policy, the object's pose and the drawer's opening."""
+    if observation == "images":
+        return env.region_force
+    # the object's world pose, which the drawer has too (its raw coordinate is the slide's)
+    return np.concatenate([env.region_force, env.object_pos, env.object_quat, env.drawer_opening[:, None]], axis=1)
+
+
 class CameraRenderer:
     """RGB frames of every copy of a BatchEnv from the named cameras: one mujoco.Renderer per
     camera and one MjData, reused across frames."""
@@ -261,6 +276,8 @@ class CameraRenderer:
 
     def render(self, env: BatchEnv, ids: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """{camera: (k, H, W, 3) uint8} for copies ``ids`` (default all) at their current state."""
+        if not self.renderers:  # a state-only policy's dataset
+            return {}
         start = time.perf_counter()
         ids = np.arange(env.n) if ids is None else np.asarray(ids)
         out = {cam: np.empty((ids.size, r.height, r.width, 3), np.uint8) for cam, r in self.renderers.items()}
@@ -280,17 +297,23 @@ class CameraRenderer:
             r.close()
 
 
+def camera_views(cfg: PolicyConfig) -> tuple[str, ...]:
+    """The cameras a policy of ``cfg`` sees (none for a state-only one)."""
+    return cfg.cameras if cfg.observation == "images" else ()
+
+
 def features(cfg: PolicyConfig) -> dict:
     """LeRobot feature spec of the datasets (images stored as images, not video)."""
     s = cfg.image_size
     image = {"dtype": "image", "shape": (s, s, 3), "names": ["height", "width", "channels"]}
+    environment = ENVIRONMENT_NAMES[cfg.observation]
     return {
-        **{f"observation.images.{cam}": image for cam in cfg.cameras},
+        **{f"observation.images.{cam}": image for cam in camera_views(cfg)},
         "observation.state": {"dtype": "float32", "shape": (len(STATE_NAMES),), "names": list(STATE_NAMES)},
         "observation.environment_state": {
             "dtype": "float32",
-            "shape": (len(ROBOT_REGIONS),),
-            "names": [f"force_{r}" for r in ROBOT_REGIONS],
+            "shape": (len(environment),),
+            "names": list(environment),
         },
         "action": {"dtype": "float32", "shape": (len(ACTION_NAMES),), "names": list(ACTION_NAMES)},
     }
@@ -334,7 +357,7 @@ def build_dataset(
     repo_id = lerobot_repo_id(method, task, seed)
     instruction = scenes.task(task).instruction
     errors: list[np.ndarray] = []
-    renderer = CameraRenderer(scene, cfg.cameras, cfg.image_size)
+    renderer = CameraRenderer(scene, camera_views(cfg), cfg.image_size)
     try:
         ds = LeRobotDataset.create(
             repo_id, FPS, features(cfg), root=tmp, robot_type=ROBOT_TYPE, use_videos=False, video_backend=VIDEO_BACKEND
@@ -342,7 +365,7 @@ def build_dataset(
         frames = 0
         for first in range(0, len(rollouts), cfg.replay_batch):
             batch = rollouts[first : first + cfg.replay_batch]
-            episodes = _replay(batch, scene, sim, renderer, errors)
+            episodes = _replay(batch, scene, sim, renderer, cfg.observation, errors)
             for ep in episodes:
                 for t in range(len(ep["action"])):
                     ds.add_frame({**{k: v[t] for k, v in ep.items()}, "task": instruction})
@@ -371,7 +394,12 @@ def build_dataset(
 
 
 def _replay(
-    batch: list[Rollout], scene: Scene, sim: SimConfig, renderer: CameraRenderer, errors: list[np.ndarray]
+    batch: list[Rollout],
+    scene: Scene,
+    sim: SimConfig,
+    renderer: CameraRenderer,
+    observation: str,
+    errors: list[np.ndarray],
 ) -> list[dict[str, np.ndarray]]:
     """Replay rollouts together; per rollout the frame arrays of its episode. Copies whose
     rollout has ended keep stepping on their last command (cheaper than a ragged batch) and
@@ -389,14 +417,14 @@ def _replay(
             recorded = np.stack([batch[i].joint_position[t] for i in live])
             errors.append(np.abs(env.hand_qpos[live] - recorded).max(axis=1))
             images = renderer.render(env, live)
-            state, force = observation_state(env), env.region_force
+            state, environment = observation_state(env), environment_state(env, observation)
             targets, wrist = recorded_commands(batch, t)
             for k, i in enumerate(live):
                 ep = episodes[i]
                 for cam, key in zip(renderer.cameras, cams, strict=True):
                     ep[key].append(images[cam][k])
                 ep["observation.state"].append(state[i].astype(np.float32))
-                ep["observation.environment_state"].append(force[i].astype(np.float32))
+                ep["observation.environment_state"].append(environment[i].astype(np.float32))
                 ep["action"].append(np.concatenate([targets[i], wrist[i]]).astype(np.float32))
             env.step(targets, wrist[:, :3], wrist[:, 3:])
     finally:

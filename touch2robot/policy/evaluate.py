@@ -26,6 +26,7 @@ from touch2robot.policy.dataset import (
     FPS,
     CameraRenderer,
     Rollout,
+    environment_state,
     observation_state,
     recorded_commands,
     reset_to_first_rows,
@@ -100,11 +101,11 @@ def load_policy(policy_dir: Path, device: str | None = None):
     return policy, pre, post
 
 
-def _observation(env: BatchEnv, renderer: CameraRenderer) -> dict[str, np.ndarray]:
+def _observation(env: BatchEnv, renderer: CameraRenderer, observation: str) -> dict[str, np.ndarray]:
     images = renderer.render(env)
     obs = {f"observation.images.{cam}": img for cam, img in images.items()}
     obs["observation.state"] = observation_state(env).astype(np.float32)
-    obs["observation.environment_state"] = env.region_force.astype(np.float32)
+    obs["observation.environment_state"] = environment_state(env, observation).astype(np.float32)
     return obs
 
 
@@ -142,9 +143,10 @@ def _rollout_policy(
     steps: int | None,
 ) -> EvalResult:
     n_obs, n_act = policy.config.n_obs_steps, policy.config.n_action_steps
-    renderer = CameraRenderer(
-        scene, tuple(k.removeprefix("observation.images.") for k in policy.config.image_features), cfg.image_size
-    )
+    seen = tuple(k.removeprefix("observation.images.") for k in policy.config.image_features)
+    renderer = CameraRenderer(scene, seen, cfg.image_size)
+    # a state-only policy's episodes are filmed by the profile's cameras, for the videos alone
+    filming = CameraRenderer(scene, cfg.cameras if video_episodes and not seen else (), cfg.image_size)
     successes, progress, videos = [], [], []
     replans = 0
     try:
@@ -160,11 +162,12 @@ def _rollout_policy(
                 replans = 0
                 chunk = np.empty((env.n, 0, 23))
                 for t in range(horizon):
-                    obs = _observation(env, renderer)
+                    obs = _observation(env, renderer, cfg.observation)
                     history = (history or [obs] * n_obs)[1:] + [obs]  # the first observation fills the window
                     if record:
+                        views = filming.render(env, np.arange(record)) if not seen else {}
                         cams = [obs[k][:record] for k in obs if k.startswith("observation.images.")]
-                        frames.append(np.concatenate(cams, axis=2))
+                        frames.append(np.concatenate(cams or list(views.values()), axis=2))
                     if t % n_act == 0:
                         chunk = _predict(policy, preprocessor, postprocessor, history)
                         replans += 1
@@ -179,6 +182,7 @@ def _rollout_policy(
                 env.close()
     finally:
         renderer.close()
+        filming.close()
     return EvalResult(np.concatenate(successes), np.concatenate(progress), horizon, replans, videos)
 
 

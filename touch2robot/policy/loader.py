@@ -111,6 +111,8 @@ def _write_cache(root: Path, keys: list[str], shapes: dict[str, tuple[int, ...]]
 def frame_cache(root: Path, keys: list[str], shapes: dict[str, tuple[int, ...]], frames: int) -> dict[str, np.ndarray]:
     """{image key: read-only memory map (frames, 3, H, W) uint8 by absolute frame index} of the
     dataset at ``root``, decoding the frames on the first call for this content."""
+    if not keys:  # a state-only dataset: nothing to decode
+        return {}
     root = Path(root)
     cache = root / CACHE_DIR
     final = cache / dataset_digest(root)

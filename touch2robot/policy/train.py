@@ -23,6 +23,7 @@ from torch's RNG as LeRobot's DataLoader does, so either loader trains the same 
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import shutil
@@ -41,6 +42,9 @@ LOSS_LOG = "loss_log.jsonl"
 
 def diffusion_kwargs(cfg: PolicyConfig) -> dict:
     """The DiffusionConfig fields this project sets (the rest is LeRobot's default)."""
+    from lerobot.configs.types import NormalizationMode
+    from lerobot.policies.diffusion.configuration_diffusion import DiffusionConfig
+
     kw: dict = {
         "n_obs_steps": cfg.n_obs_steps,
         "horizon": cfg.horizon,
@@ -51,6 +55,13 @@ def diffusion_kwargs(cfg: PolicyConfig) -> dict:
         "pretrained_backbone_weights": None,
         "push_to_hub": False,
     }
+    if cfg.observation == "state":
+        # LeRobot leaves ENV features unnormalised; its PushT-keypoints recipe min-max scales them as the state,
+        # which puts the object's few centimetres of travel on the scale of the joints
+        (default,) = (
+            f.default_factory for f in dataclasses.fields(DiffusionConfig) if f.name == "normalization_mapping"
+        )
+        kw["normalization_mapping"] = {**default(), "ENV": NormalizationMode.MIN_MAX}  # pyright: ignore[reportCallIssue]
     if cfg.down_dims is not None:
         kw["down_dims"] = tuple(cfg.down_dims)
     if cfg.num_inference_steps is not None:
@@ -114,6 +125,8 @@ def lerobot_train_args(
             text = str(value).lower()
         elif isinstance(value, tuple):
             text = "[" + ",".join(map(str, value)) + "]"
+        elif isinstance(value, dict):
+            text = json.dumps({k: getattr(v, "value", v) for k, v in value.items()})
         else:
             text = str(value)
         args.append(f"--policy.{key}={text}")
