@@ -63,12 +63,13 @@ def build_policy_dataset(source: dict, config: PolicyConfig, sim: SimConfig, dat
         config,
         source["seed"],
     )
+    rendering = f"rendering {summary.render_fps:.0f} images/s" if summary.render_frames else "no cameras"
     get_run_logger().info(
-        "%s: %d episodes, %d frames, rendering %.0f images/s, replay error max %.2e rad",
+        "%s: %d episodes, %d frames, %s, replay error max %.2e rad",
         root.name,
         summary.episodes,
         summary.frames,
-        summary.render_fps,
+        rendering,
         summary.replay_max_joint_error_rad,
     )
     return {**source, **summary.__dict__}
@@ -134,12 +135,8 @@ def train_policy(dataset: dict, config: PolicyConfig, data: str, profile: str) -
                 "dataset_frames": dataset["frames"],
             }
         )
-        mlflow.log_metrics(
-            {
-                "dataset/render_fps": dataset["render_fps"],
-                "dataset/replay_max_joint_error_rad": dataset["replay_max_joint_error_rad"],
-            }
-        )
+        rendered = {"dataset/render_fps": dataset["render_fps"]} if dataset["render_frames"] else {}
+        mlflow.log_metrics({**rendered, "dataset/replay_max_joint_error_rad": dataset["replay_max_joint_error_rad"]})
         progress = TrainingProgress(
             f"policy {dataset['task']}/{dataset['method']}",
             "update",
