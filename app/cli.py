@@ -248,11 +248,24 @@ def ingest(
     data: DataOpt = None,
     folder: Annotated[
         Path | None,
-        typer.Option(help="folder of MCAP files (default <data>/recordings)", exists=True, file_okay=False),
+        typer.Option(
+            help="folder of recordings: MCAP files and rosbag2 folders (default <data>/recordings)",
+            exists=True,
+            file_okay=False,
+        ),
+    ] = None,
+    session: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="a session field (kind, task, subject, method, reference_recording, calibration_recording, rig, "
+            "...) as FIELD=VALUE, for recordings whose MCAP record, rosbag2 custom_data and sidecar "
+            "<recording>.session.yaml do not give it; repeat for several",
+        ),
     ] = None,
 ) -> None:
-    """Ingest MCAP recordings into the Parquet lake and DuckDB catalog (Prefect flow
-    `ingest`, cached per file content): bad files are quarantined with a reason."""
+    """Ingest recordings (MCAP files, rosbag2 folders of MCAP or sqlite3 storage) into the Parquet lake and
+    DuckDB catalog (Prefect flow `ingest`, cached per file content): bad files are quarantined with a reason."""
+    fields = _session_fields(session or [])
     _check_profile(profile)
     layout = _layout(data)
     result = _run_flow(
@@ -261,8 +274,25 @@ def ingest(
         profile=profile,
         data=str(layout.root),
         folder=str(folder.resolve()) if folder else None,
+        session=fields,
     )
     _closing(layout, f"ingest ({profile})", {"ingest": result})
+
+
+def _session_fields(pairs: list[str]) -> dict[str, str]:
+    """``--session FIELD=VALUE`` options as fields, checked before anything else runs."""
+    from touch2robot.ingest.sources import SourceError, checked_fields
+
+    fields: dict[str, str] = {}
+    for pair in pairs:
+        name, sep, value = pair.partition("=")
+        if not sep or not name.strip():
+            raise typer.BadParameter(f"{pair!r} is not FIELD=VALUE", param_hint="--session")
+        fields[name.strip()] = value.strip()
+    try:
+        return checked_fields(fields, "--session")
+    except SourceError as e:
+        raise typer.BadParameter(str(e), param_hint="--session") from None
 
 
 @app.command()

@@ -19,13 +19,16 @@ from tasks.ingest import (
 from tasks.runners import ProfileTaskRunner
 from touch2robot import datasets
 from touch2robot.config import load_profile
-from touch2robot.ingest import link_replays, recording_rows
+from touch2robot.ingest import link_replays, recording_digest, recording_rows
 from touch2robot.settings import DataLayout
 
 
 @flow(name="ingest", task_runner=ProfileTaskRunner(), log_prints=True)
-def ingest(profile: str = "smoke", data: str | None = None, folder: str | None = None) -> dict:
-    """Ingest every MCAP under ``folder`` (default ``<data>/recordings``): bad files are
+def ingest(
+    profile: str = "smoke", data: str | None = None, folder: str | None = None, session: dict[str, str] | None = None
+) -> dict:
+    """Ingest every recording under ``folder`` (default ``<data>/recordings``): MCAP files and rosbag2
+    folders; ``session`` gives the session fields a recording's own sources lack. Bad files are
     quarantined with a reason; contacts and thresholds are extracted; the catalog is refreshed."""
     layout = DataLayout.from_env(data)
     config = load_profile(profile).contacts
@@ -34,8 +37,11 @@ def ingest(profile: str = "smoke", data: str | None = None, folder: str | None =
     for entry, why in scan.skipped:
         get_run_logger().warning("skipped %s: %s", entry, why)
     paths = [str(p) for p in scan.recordings]
-    digests = [datasets.file_digest(p) for p in paths]
-    results = [f.result() for f in stored(ingest_recording, layout.results).map(paths, digests, unmapped(lake))]
+    digests = [recording_digest(Path(p)) for p in paths]
+    results = [
+        f.result()
+        for f in stored(ingest_recording, layout.results).map(paths, digests, unmapped(lake), unmapped(session or {}))
+    ]
     current = {r["path"]: r["recording_id"] for r in results if r["status"] != RecordingStatus.QUARANTINED}
     remove_superseded(lake, current)
     gloves, links, problems = link_replays(recording_rows(layout.lake).to_pylist())

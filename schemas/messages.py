@@ -131,3 +131,17 @@ OPTIONAL_METADATA_KEYS: dict[str, tuple[str, ...]] = {
     "robot_replay": ("trajectory", "seed"),
     "robot_calibration": (),
 }
+# Every field a session may give, whatever its source (the MCAP record, rosbag2 custom_data, a sidecar, the
+# command line): the keys above, the rig that recorded it (a calibration also names its sensor) and the
+# demonstration's number within its subject's.
+SESSION_KEYS: tuple[str, ...] = tuple(
+    dict.fromkeys(
+        [
+            *(k for keys in METADATA_KEYS.values() for k in keys),
+            *(k for keys in OPTIONAL_METADATA_KEYS.values() for k in keys),
+            "rig",
+            "sensor",
+            "demo",
+        ]
+    )
+)

@@ -30,9 +30,10 @@ from touch2robot.settings import DataLayout
     retries=1,
     task_run_name="ingest-{content_sha:.12}",
 )
-def ingest_recording(path: str, content_sha: str, lake: str) -> dict:
-    """Ingest one MCAP file (keyed by its content hash) into the lake."""
-    result = ingest_file(Path(path), Path(lake))
+def ingest_recording(path: str, content_sha: str, lake: str, session: dict[str, str] | None = None) -> dict:
+    """Ingest one recording (keyed by its content hash, sidecar included, and the command line's session
+    fields) into the lake."""
+    result = ingest_file(Path(path), Path(lake), session)
     if result.status == RecordingStatus.QUARANTINED:
         get_run_logger().warning("quarantined %s: %s", path, result.reason)
     return asdict(result)

@@ -85,7 +85,9 @@ def _rewrite(
             if mutate:
                 values, stamp = mutate(i, values, stamp)
             if drop != "/glove/taxels":
-                w.write("/glove/taxels", stamp, cdr.encode_tactile(stamp, "glove", values))
+                # logged in order: a header stamp that goes back while the log time goes on is the defect
+                # (messages merely stored out of log-time order are sorted: tests/test_ingest_sources.py)
+                w.write("/glove/taxels", s, cdr.encode_tactile(stamp, "glove", values))
             if drop != "/glove/hand_joints":
                 w.write("/glove/hand_joints", s, cdr.encode_joint_state(s, "glove", GLOVE_JOINT_NAMES, np.zeros(20)))
             w.write("/glove/keypoints", s, cdr.encode_pose_array(s, "world", np.zeros((21, 3))))

@@ -1,4 +1,5 @@
-"""Ingestion: MCAP recordings -> Parquet stream tables + a ``recordings`` row per file.
+"""Ingestion: recordings (MCAP files, rosbag2 folders) -> Parquet stream tables + a ``recordings`` row per
+recording.
 
 A file is ingested whole or quarantined whole: it is read and validated completely
 before anything is written, its stream tables are written first and its ``recordings``
@@ -7,6 +8,7 @@ writes nothing; a changed file gets a new id (content hash)."""
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -18,6 +20,7 @@ from schemas.messages import TOPICS_BY_KIND
 from schemas.vocabulary import RecordingKind, RecordingStatus
 from touch2robot import lake as lake_io
 from touch2robot.ingest.reader import DecodedRecording, RecordingError, content_id, counts_json, read_recording
+from touch2robot.ingest.sources import content_size, recording_digest
 from touch2robot.ingest.tables import stream_tables
 
 __all__ = [
@@ -27,6 +30,7 @@ __all__ = [
     "ingest_file",
     "link_replays",
     "read_recording",
+    "recording_digest",
     "recording_rows",
     "superseded_ids",
 ]
@@ -70,21 +74,19 @@ def _row(path: Path, recording_id: str, size: int, status: str, reason: str, rec
     )
 
 
-def ingest_file(path: Path, lake: Path) -> IngestResult:
-    """Ingest one MCAP file into the lake (or quarantine it with the reason)."""
+def ingest_file(path: Path, lake: Path, session: Mapping[str, str] | None = None) -> IngestResult:
+    """Ingest one recording (an MCAP file or a rosbag2 folder) into the lake, or quarantine it with the
+    reason. ``session``: fields given on the command line where the recording's own sources lack them."""
     path = Path(path).resolve()
     try:
-        rec = read_recording(path)
+        rec = read_recording(path, session)
     except RecordingError as e:
         try:
-            data = path.read_bytes()
-            rid = content_id(data)
+            rid, size = recording_digest(path)[:16], content_size(path)
         except OSError:  # unreadable: its own quarantine row, keyed by where it is
-            data, rid = b"", content_id(f"unreadable:{path}".encode())
+            rid, size = content_id(f"unreadable:{path}".encode()), 0
         lake_io.remove_id(lake, rid)  # a bad file never leaves rows behind
-        lake_io.write_rows(
-            lake, "recordings", rid, _row(path, rid, len(data), RecordingStatus.QUARANTINED, e.reason, None)
-        )
+        lake_io.write_rows(lake, "recordings", rid, _row(path, rid, size, RecordingStatus.QUARANTINED, e.reason, None))
         return IngestResult(rid, str(path), RecordingStatus.QUARANTINED, e.reason, "", 0)
     marker = lake_io.file_path(lake, "recordings", rec.recording_id)
     if _stored_whole(lake, rec, marker):

@@ -1,6 +1,7 @@
-"""Reading one MCAP recording into decoded, validated columns.
+"""Reading one recording (an MCAP file or a rosbag2 folder: ``touch2robot.ingest.sources``) into decoded,
+validated columns.
 
-The file is read in one linear pass with chunk and data-section CRCs checked, so a
+An MCAP file is read in one linear pass with chunk and data-section CRCs checked, so a
 truncated or corrupt file is detected before anything is written. Any problem raises
 ``RecordingError`` with a reason that names the topic/field; ingestion quarantines the
 file with that reason and writes none of its rows (no partial recovery: a file is taken
@@ -9,27 +10,33 @@ whole or not at all)."""
 from __future__ import annotations
 
 import hashlib
-import io
 import json
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from mcap.exceptions import McapError
-from mcap.records import Channel, DataEnd, Footer, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
 
 from schemas import plausibility as plaus
 from schemas.messages import (
     MESSAGE_ENCODING,
     METADATA_KEYS,
-    METADATA_NAME,
     OPTIONAL_METADATA_KEYS,
     SCHEMA_VERSION,
     TOPICS_BY_KIND,
     Topic,
 )
 from schemas.vocabulary import Method
+from touch2robot.ingest.sources import (
+    SourceError,
+    TopicMessages,
+    read_container,
+    read_sidecar,
+    recording_digest,
+    session_metadata,
+    sidecar_path,
+    where_to_give,
+)
 from touch2robot.recording.cdr import Batch, CdrError, decode_batch
 from touch2robot.scenes import TASKS
 
@@ -66,86 +73,65 @@ def content_id(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()[:16]
 
 
-def read_recording(path: Path) -> DecodedRecording:
-    """Read, check and decode one MCAP recording, or raise RecordingError."""
+def read_recording(path: Path, session: Mapping[str, str] | None = None) -> DecodedRecording:
+    """Read, check and decode one recording (an MCAP file or a rosbag2 folder), or raise RecordingError.
+    ``session``: fields given on the command line, used where no other source gives them
+    (``touch2robot.ingest.sources``)."""
     path = Path(path)
     try:
-        data = path.read_bytes()
+        digest = recording_digest(path)
+        container = read_container(path)
+        sidecar = read_sidecar(sidecar_path(path))
     except OSError as e:
         raise RecordingError(path, f"cannot read the file: {e.strerror}") from None
-    schemas: dict[int, Schema] = {}
-    channels: dict[int, Channel] = {}
-    messages: dict[int, list[bytes]] = {}
-    metadata: dict[str, str] | None = None
-    seen_footer = seen_data_end = False
-    try:
-        for record in StreamReader(io.BytesIO(data), validate_crcs=True, skip_magic=False).records:
-            if isinstance(record, Message):
-                messages.setdefault(record.channel_id, []).append(record.data)
-            elif isinstance(record, Channel):
-                channels[record.id] = record
-            elif isinstance(record, Schema):
-                schemas[record.id] = record
-            elif isinstance(record, Metadata) and record.name == METADATA_NAME:
-                metadata = dict(record.metadata)
-            elif isinstance(record, DataEnd):
-                seen_data_end = True
-            elif isinstance(record, Footer):
-                seen_footer = True
-    except (McapError, ValueError, EOFError, OSError, KeyError, IndexError) as e:
-        # mcap raises EndOfFile/CRCValidationError/InvalidMagic/RecordLengthLimitExceeded
-        # and zstd raises plain errors on damaged chunk bytes
-        raise RecordingError(path, f"corrupt or truncated MCAP ({type(e).__name__}: {e})") from None
-    except Exception as e:  # decompressor errors have no common base class
-        raise RecordingError(path, f"corrupt or truncated MCAP ({type(e).__name__}: {e})") from None
-    if not (seen_footer and seen_data_end):
-        raise RecordingError(path, "truncated MCAP: no data-end/footer record (the recorder did not finish the file)")
-    if metadata is None:
-        raise RecordingError(path, f"no '{METADATA_NAME}' metadata record (kind, task, subject ...)")
+    except SourceError as e:
+        raise RecordingError(path, str(e)) from None
+    metadata = session_metadata(container, sidecar, session or {})
     kind = metadata.get("kind", "")
+    if not kind:
+        raise RecordingError(
+            path,
+            f"no session metadata 'kind' ({', '.join(TOPICS_BY_KIND)}): give it in {where_to_give(path)}",
+        )
     if kind not in TOPICS_BY_KIND:
         raise RecordingError(path, f"metadata 'kind' is {kind!r}; expected one of {sorted(TOPICS_BY_KIND)}")
     missing_keys = [k for k in METADATA_KEYS[kind] if not metadata.get(k)]
     if missing_keys:
-        raise RecordingError(path, f"metadata lacks {', '.join(missing_keys)} for a {kind} recording")
+        raise RecordingError(
+            path,
+            f"metadata lacks {', '.join(missing_keys)} for a {kind} recording: give it in {where_to_give(path)}",
+        )
     _check_metadata(path, kind, metadata)
 
-    by_topic = {c.topic: c for c in channels.values()}
-    missing = [t.name for t in TOPICS_BY_KIND[kind] if t.name not in by_topic or not messages.get(by_topic[t.name].id)]
+    topics = container.topics
+    missing = [t.name for t in TOPICS_BY_KIND[kind] if t.name not in topics or not topics[t.name].payloads]
     if missing:
         raise RecordingError(path, f"missing topic(s) {', '.join(missing)} (required for a {kind} recording)")
 
-    decoded: dict[str, Batch] = {}
-    for topic in TOPICS_BY_KIND[kind]:
-        channel = by_topic[topic.name]
-        decoded[topic.name] = _decode_topic(path, topic, channel, schemas.get(channel.schema_id), messages[channel.id])
+    decoded = {topic.name: _decode_topic(path, topic, topics[topic.name]) for topic in TOPICS_BY_KIND[kind]}
     start = min(int(b.stamp_ns[0]) for b in decoded.values())
     end = max(int(b.stamp_ns[-1]) for b in decoded.values())
     _check_span(path, decoded, start, end)
     return DecodedRecording(
         path=path,
-        recording_id=content_id(data),
-        size_bytes=len(data),
+        recording_id=digest[:16],
+        size_bytes=container.size_bytes,
         metadata=metadata,
         topics=decoded,
         start_ns=start,
         end_ns=end,
-        message_counts={c.topic: len(messages.get(c.id, [])) for c in channels.values()},
+        message_counts={name: len(messages.payloads) for name, messages in topics.items()},
     )
 
 
-def _decode_topic(path: Path, topic: Topic, channel: Channel, schema: Schema | None, payloads: list[bytes]) -> Batch:
+def _decode_topic(path: Path, topic: Topic, messages: TopicMessages) -> Batch:
     where = f"topic {topic.name}"
-    if schema is None or schema.name != topic.msg_type:
-        raise RecordingError(
-            path, f"{where} has schema {schema.name if schema else None!r}, expected {topic.msg_type!r}"
-        )
-    if channel.message_encoding != MESSAGE_ENCODING:
-        raise RecordingError(
-            path, f"{where} has message encoding {channel.message_encoding!r}, expected {MESSAGE_ENCODING!r}"
-        )
+    if messages.schema_name != topic.msg_type:
+        raise RecordingError(path, f"{where} has schema {messages.schema_name!r}, expected {topic.msg_type!r}")
+    if messages.encoding != MESSAGE_ENCODING:
+        raise RecordingError(path, f"{where} has message encoding {messages.encoding!r}, expected {MESSAGE_ENCODING!r}")
     try:
-        batch = decode_batch(topic.msg_type, payloads)
+        batch = decode_batch(topic.msg_type, messages.payloads)
     except CdrError as e:
         raise RecordingError(path, f"{where}: {e}") from None
     steps = np.diff(batch.stamp_ns)

@@ -1,6 +1,8 @@
-"""Finding the recordings of a folder: every regular, readable ``*.mcap`` file below it, and for every other
-entry with that name (a directory, a FIFO, a device, a dangling or looping link, an unreadable file) the
-reason it is skipped. Nothing here opens a file for reading, so a FIFO cannot block the walk."""
+"""Finding the recordings of a folder: every regular, readable ``*.mcap`` file below it and every rosbag2
+folder (one holding a ``metadata.yaml``; its own files are its storage, not recordings of their own), and
+for every other entry named like a recording (a directory, a FIFO, a device, a dangling or looping link, an
+unreadable file) the reason it is skipped. Nothing here opens a file for reading, so a FIFO cannot block the
+walk."""
 
 from __future__ import annotations
 
@@ -10,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 SUFFIX = ".mcap"
+BAG_METADATA = "metadata.yaml"
 
 
 @dataclass(frozen=True)
@@ -32,8 +35,8 @@ def _kind(mode: int) -> str:
 
 
 def find_recordings(folder: Path) -> Scan:
-    """The ``*.mcap`` recordings below ``folder``, links followed (a folder reached twice, as by a link
-    loop, is walked once). Raises FileNotFoundError/NotADirectoryError naming ``folder`` itself."""
+    """The ``*.mcap`` recordings and rosbag2 folders below ``folder``, links followed (a folder reached twice,
+    as by a link loop, is walked once). Raises FileNotFoundError/NotADirectoryError naming ``folder`` itself."""
     folder = Path(folder)
     if not folder.exists():
         raise FileNotFoundError(f"recordings folder {folder} does not exist")
@@ -51,6 +54,13 @@ def find_recordings(folder: Path) -> Scan:
             dirs.clear()
             continue
         walked.add((here.st_dev, here.st_ino))
+        if os.path.isfile(os.path.join(parent, BAG_METADATA)):  # the folder itself may be one
+            if os.access(parent, os.R_OK | os.X_OK):
+                found.append(Path(parent).absolute())
+            else:
+                skipped.append((Path(parent), "a rosbag2 folder that is not readable (permission denied)"))
+            dirs.clear()
+            continue
         dirs.sort()
         for name in sorted(n for n in dirs + files if n.endswith(SUFFIX)):
             entry = Path(parent) / name
@@ -60,6 +70,8 @@ def find_recordings(folder: Path) -> Scan:
                 link = " (a dangling or looping link)" if entry.is_symlink() else ""
                 skipped.append((entry, f"cannot stat{link}: {e.strerror}"))
                 continue
+            if stat.S_ISDIR(mode) and os.path.isfile(entry / BAG_METADATA):
+                continue  # a rosbag2 folder named like a file: the walk finds it
             if not stat.S_ISREG(mode):
                 skipped.append((entry, f"{_kind(mode)}, not a recording file"))
             elif not os.access(entry, os.R_OK):
