@@ -15,8 +15,8 @@ itself instead, so that:
   a run is that import), and it listens on a free port of 127.0.0.1 only.
 
 The API is Prefect's own app (``prefect.server.api.server:create_app`` under uvicorn,
-what Prefect's temporary server runs) on the data folder's Prefect database. This module
-only spawns processes and speaks HTTP: it does not import Prefect."""
+what Prefect's temporary server runs, by way of ``app.prefect_api``) on the data folder's
+Prefect database. This module only spawns processes and speaks HTTP: it does not import Prefect."""
 
 from __future__ import annotations
 
@@ -144,7 +144,7 @@ class PrefectApi:
             "-m",
             "uvicorn",
             "--factory",
-            "prefect.server.api.server:create_app",
+            "app.prefect_api:create_app",  # Prefect's app, write transactions IMMEDIATE (that module says why)
             "--host",
             "127.0.0.1",
             "--port",

@@ -154,3 +154,68 @@ def test_ui_start_serves_both_uis_and_a_stop_leaves_nothing_running(tmp_path: Pa
         proc.wait()
         for line in processes_in(data):
             os.kill(int(line.split(":")[0]), signal.SIGKILL)
+
+
+# Prefect's server transaction that reads, meets another writer's commit, then writes: what its event
+# persister does beside a task-run creation. Run in its own interpreter: the patch is for the server process.
+READ_THEN_WRITE = textwrap.dedent(
+    """
+    import asyncio, sqlite3, sys
+    from pathlib import Path
+    from sqlalchemy import text
+    from prefect.server.database.configurations import AioSqliteConfiguration
+
+    async def attempt(db):
+        config = AioSqliteConfiguration(connection_url=f"sqlite+aiosqlite:///{db}")
+        engine = await config.engine()
+        try:
+            async with await config.session(engine) as session:
+                async with config.begin_transaction(session):
+                    await session.execute(text("SELECT count(*) FROM t"))
+                    other = sqlite3.connect(db, timeout=0)
+                    try:
+                        other.execute("INSERT INTO t VALUES (1)")
+                        other.commit()
+                    except sqlite3.OperationalError:
+                        pass  # it had to wait: the transaction holds the write lock
+                    other.close()
+                    await session.execute(text("INSERT INTO t VALUES (2)"))
+            return "committed"
+        except Exception as e:
+            return type(e).__name__ + ": " + str(e).splitlines()[0]
+        finally:
+            await engine.dispose()
+
+    def fresh(db):
+        for p in db.parent.glob(db.name + "*"):
+            p.unlink()
+        c = sqlite3.connect(db)
+        c.execute("PRAGMA journal_mode=WAL")
+        c.execute("CREATE TABLE t (x)")
+        c.commit()
+        c.close()
+        return db
+
+    db = Path(sys.argv[1])
+    print("prefect:", asyncio.run(attempt(fresh(db))))
+    if sys.argv[2] == "patched":
+        from app.prefect_api import _immediate_transactions
+        _immediate_transactions()
+        print("patched:", asyncio.run(attempt(fresh(db))))
+    """
+)
+
+
+def test_the_commands_prefect_api_waits_for_another_writer_instead_of_answering_busy(tmp_path: Path) -> None:
+    """Prefect's DEFERRED transaction fails at once ('database is locked': the server's 503, then the client's
+    2 s back-off); the command's server (app.prefect_api) begins it IMMEDIATE, and it commits."""
+    out = subprocess.run(
+        [sys.executable, "-c", READ_THEN_WRITE, str(tmp_path / "prefect.db"), "patched"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=Path(__file__).resolve().parents[1],
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    assert "prefect: OperationalError: (sqlite3.OperationalError) database is locked" in out.stdout
+    assert "patched: committed" in out.stdout
