@@ -33,7 +33,7 @@ OURS = (
 
 
 def _dataset(data: Path | None, cfg, out: Path) -> tuple[Path, str, float]:
-    from touch2robot import lake as lake_io
+    from touch2robot import datasets
     from touch2robot.policy.dataset import build_dataset, read_rollouts, sources
     from touch2robot.sim.config import SimConfig
     from touch2robot.sim.scene import build_scene
@@ -43,13 +43,8 @@ def _dataset(data: Path | None, cfg, out: Path) -> tuple[Path, str, float]:
         sys.path.insert(0, str(ROOT / "tests"))
         from conftest import scripted_rollout_rows
 
-        lake_io.write_rows(
-            lake,
-            "rollouts",
-            "teacher-pick",
-            scripted_rollout_rows("pick", "bench", 8, 40),
-            partition={"method": "bench"},
-        )
+        rows = scripted_rollout_rows("pick", "bench", 8, 40)
+        datasets.ROLLOUTS.write(lake, datasets.rollouts_key("teacher", "pick", 0), rows, method="bench")
     src = sources(lake)[0]
     sim = SimConfig(threads=1)
     summary = build_dataset(

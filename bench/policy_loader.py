@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _dataset(out: Path, cfg, episodes: int, frames: int) -> tuple[Path, str]:
-    from touch2robot import lake as lake_io
+    from touch2robot import datasets
     from touch2robot.policy.dataset import build_dataset, read_rollouts, sources
     from touch2robot.sim.config import SimConfig
     from touch2robot.sim.scene import build_scene
@@ -41,7 +41,7 @@ def _dataset(out: Path, cfg, episodes: int, frames: int) -> tuple[Path, str]:
 
     lake = out / "lake"
     rows = scripted_rollout_rows("pick", "bench", episodes, frames)
-    lake_io.write_rows(lake, "rollouts", "teacher-pick", rows, partition={"method": "bench"})
+    datasets.ROLLOUTS.write(lake, datasets.rollouts_key("teacher", "pick", 0), rows, method="bench")
     sim = SimConfig(threads=1)
     summary = build_dataset(
         out / "ds", "pick", "bench", read_rollouts(sources(lake)[0].path), build_scene("pick", sim), sim, cfg
