@@ -5,7 +5,6 @@ log-time order. Each must land as the demonstrator's own file does."""
 from __future__ import annotations
 
 import random
-import shutil
 from pathlib import Path
 
 import pyarrow as pa
@@ -206,7 +205,6 @@ def test_a_bad_session_option_is_refused_before_any_compute(pair: str, tmp_path:
     assert result.exit_code == 2, result.output
     assert "--session" in result.output
     assert not data.exists()
-    shutil.rmtree(tmp_path, ignore_errors=True)
 
 
 @pytest.mark.slow

@@ -32,7 +32,6 @@ from touch2robot.ingest.sources import (
     TopicMessages,
     read_container,
     read_sidecar,
-    recording_digest,
     session_metadata,
     sidecar_path,
     where_to_give,
@@ -79,7 +78,6 @@ def read_recording(path: Path, session: Mapping[str, str] | None = None) -> Deco
     (``touch2robot.ingest.sources``)."""
     path = Path(path)
     try:
-        digest = recording_digest(path)
         container = read_container(path)
         sidecar = read_sidecar(sidecar_path(path))
     except OSError as e:
@@ -114,7 +112,7 @@ def read_recording(path: Path, session: Mapping[str, str] | None = None) -> Deco
     _check_span(path, decoded, start, end)
     return DecodedRecording(
         path=path,
-        recording_id=digest[:16],
+        recording_id=container.digest[:16],
         size_bytes=container.size_bytes,
         metadata=metadata,
         topics=decoded,

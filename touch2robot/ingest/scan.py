@@ -15,6 +15,11 @@ SUFFIX = ".mcap"
 BAG_METADATA = "metadata.yaml"
 
 
+def is_bag(path: Path) -> bool:
+    """A rosbag2 recording: a folder with its ``metadata.yaml`` (stats only, nothing is opened)."""
+    return os.path.isdir(path) and os.path.isfile(os.path.join(path, BAG_METADATA))
+
+
 @dataclass(frozen=True)
 class Scan:
     recordings: list[Path]  # sorted, absolute
@@ -54,7 +59,7 @@ def find_recordings(folder: Path) -> Scan:
             dirs.clear()
             continue
         walked.add((here.st_dev, here.st_ino))
-        if os.path.isfile(os.path.join(parent, BAG_METADATA)):  # the folder itself may be one
+        if is_bag(Path(parent)):  # the folder itself may be one
             if os.access(parent, os.R_OK | os.X_OK):
                 found.append(Path(parent).absolute())
             else:
@@ -70,7 +75,7 @@ def find_recordings(folder: Path) -> Scan:
                 link = " (a dangling or looping link)" if entry.is_symlink() else ""
                 skipped.append((entry, f"cannot stat{link}: {e.strerror}"))
                 continue
-            if stat.S_ISDIR(mode) and os.path.isfile(entry / BAG_METADATA):
+            if is_bag(entry):
                 continue  # a rosbag2 folder named like a file: the walk finds it
             if not stat.S_ISREG(mode):
                 skipped.append((entry, f"{_kind(mode)}, not a recording file"))

@@ -24,12 +24,11 @@ from typing import Any
 
 import numpy as np
 import yaml
-from mcap.exceptions import McapError
 from mcap.records import Channel, DataEnd, Footer, Message, Metadata, Schema
 from mcap.stream_reader import StreamReader
 
 from schemas.messages import METADATA_NAME, SCHEMA_VERSION, SESSION_KEYS
-from touch2robot.ingest.scan import BAG_METADATA
+from touch2robot.ingest.scan import BAG_METADATA, is_bag
 
 SIDECAR_SUFFIX = ".session.yaml"
 MCAP_SUFFIX = ".mcap"
@@ -68,11 +67,7 @@ class Container:
     record: dict[str, str] | None
     custom_data: dict[str, str]
     size_bytes: int
-
-
-def is_bag(path: Path) -> bool:
-    """A rosbag2 recording: a folder with its ``metadata.yaml`` (a stat, nothing is opened)."""
-    return path.is_dir() and (path / BAG_METADATA).is_file()
+    digest: str  # recording_digest of what was read
 
 
 def sidecar_path(recording: Path) -> Path:
@@ -100,13 +95,17 @@ def recording_digest(path: Path) -> str:
     Raises OSError when a file cannot be read."""
     path = Path(path)
     h = hashlib.sha256()
-    files = _content_files(path)
-    for p in files:
+    for p in _content_files(path):
         if path.is_dir():
             h.update(f"\0{p.name}\0".encode())
         with open(p, "rb") as f:
             for block in iter(lambda: f.read(1 << 20), b""):
                 h.update(block)
+    return _with_sidecar(h, path)
+
+
+def _with_sidecar(h: Any, path: Path) -> str:
+    """The digest ``h`` of a recording's bytes, its sidecar's bytes added."""
     sidecar = sidecar_path(path)
     if sidecar.is_file():
         h.update(b"\0" + SIDECAR_SUFFIX.encode() + b"\0" + sidecar.read_bytes())
@@ -153,12 +152,12 @@ def _read_mcap(path: Path) -> Container:
         topics[channel.topic] = TopicMessages(
             schema.name if schema else None, channel.message_encoding, times, payloads
         )
-    return Container({t: m.in_log_order() for t, m in topics.items()}, record, {}, len(data))
+    digest = _with_sidecar(hashlib.sha256(data), path)  # the bytes just read: the file is read once
+    return Container({t: m.in_log_order() for t, m in topics.items()}, record, {}, len(data), digest)
 
 
 def _read_bag(path: Path) -> Container:
     from rosbags.rosbag2 import Reader
-    from rosbags.rosbag2.errors import ReaderError
 
     custom = _bag_custom_data(path / BAG_METADATA)
     topics: dict[str, TopicMessages] = {}
@@ -172,11 +171,12 @@ def _read_bag(path: Path) -> Container:
                 messages = topics[connection.topic]
                 messages.log_times.append(int(timestamp))
                 messages.payloads.append(bytes(raw))
-    except (ReaderError, McapError) as e:
+    except OSError:
+        raise
+    except Exception as e:  # rosbags' ReaderError, and its storage plugins' own (sqlite3, mcap, zstd)
         raise SourceError(f"rosbag2 folder cannot be read ({type(e).__name__}: {e})") from None
-    except Exception as e:  # the storage plugins' own errors (sqlite3, zstd) have no common base class
-        raise SourceError(f"rosbag2 folder cannot be read ({type(e).__name__}: {e})") from None
-    return Container({t: m.in_log_order() for t, m in topics.items()}, None, custom, content_size(path))
+    topics = {t: m.in_log_order() for t, m in topics.items()}
+    return Container(topics, None, custom, content_size(path), recording_digest(path))
 
 
 def _bag_custom_data(metadata_file: Path) -> dict[str, str]:
