@@ -106,6 +106,15 @@ def live_processes_with(data: Path) -> list[str]:
     return live_processes_with_env("TOUCH2ROBOT_DATA", str(data))
 
 
+def survivors_after(data: Path, seconds: float = 15) -> list[str]:
+    """The processes naming ``data`` still live after up to ``seconds``: a finished command's
+    multiprocessing resource tracker exits a moment after it (it waits for its pipe to close)."""
+    deadline = time.monotonic() + seconds
+    while (left := live_processes_with(data)) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    return left
+
+
 def kill_survivors(data: Path) -> None:
     """SIGKILL what a failed test left running in ``data`` (processes this test started)."""
     for line in live_processes_with(data):
@@ -199,9 +208,7 @@ def kill_once_results_persist(
     done_before = {p.name: p.stat().st_mtime_ns for p in results.iterdir() if p.stat().st_mtime_ns < killed_at - 10**9}
     assert len(done_before) >= 3
 
-    deadline = time.monotonic() + 15
-    while (left := live_processes_with(data)) and time.monotonic() < deadline:
-        time.sleep(0.2)
+    left = survivors_after(data)
     assert not left, f"processes of the killed run survive: {left}"
     return done_before
 
@@ -228,7 +235,7 @@ def test_sigkill_mid_run_leaves_no_server_and_the_rerun_uses_the_cache(
     assert not rewritten, f"results rewritten by the re-run: {rewritten}"
     cached = second_log.read_text().count("Finished in state Cached(")
     assert cached >= len(done_before), second_log.read_text()[-6000:]
-    assert not live_processes_with(data)
+    assert not survivors_after(data), "the finished re-run left processes running"
 
 
 def test_sigkill_of_the_command_alone_leaves_nothing_running_and_the_rerun_resumes(
@@ -260,7 +267,7 @@ def test_sigkill_of_the_command_alone_leaves_nothing_running_and_the_rerun_resum
         second.wait(timeout=600)
         out = second_log.read_text()
         assert second.returncode == 0, out[-6000:]
-        assert not live_processes_with(data), "the finished command left processes running"
+        assert not survivors_after(data), "the finished command left processes running"
     finally:
         kill_survivors(data)
 
