@@ -17,6 +17,7 @@ import pytest
 import torch
 from conftest import lerobot_frame, scripted_rollout_rows
 
+from schemas.tables import ROBOT_REGIONS
 from touch2robot import lake as lake_io
 from touch2robot import scenes
 from touch2robot.config import load_profile
@@ -24,6 +25,7 @@ from touch2robot.policy.config import VIDEO_BACKEND
 from touch2robot.policy.dataset import (
     ACTION_NAMES,
     STATE_NAMES,
+    TACTILE_KEY,
     RolloutError,
     build_dataset,
     common_demonstrations,
@@ -158,6 +160,10 @@ def test_dataset_round_trips_through_lerobots_loader(dataset) -> None:
     assert frame["observation.environment_state"].shape == (8,)
     forces = torch.stack([lerobot_frame(ds, i)["observation.environment_state"] for i in range(60, 90)])
     assert forces.max() > 0.5  # the scripted grasp touches the box: tactile forces are recorded
+    # the named tactile feature, alongside what the policy reads (LeRobot 0.6.1 has no tactile convention)
+    assert ds.meta.features[TACTILE_KEY]["names"] == [f"force_{r}" for r in ROBOT_REGIONS]
+    tactile = torch.stack([lerobot_frame(ds, i)[TACTILE_KEY] for i in range(60, 90)])
+    assert torch.equal(tactile, forces)
 
 
 def test_column_views_give_lerobots_samples_decoding_only_the_window_images(
@@ -225,3 +231,38 @@ def test_lerobots_own_training_command_loads_the_dataset(dataset, tmp_path: Path
     assert done.returncode == 0, done.stderr[-3000:]
     log = done.stdout + done.stderr
     assert "dataset.num_frames=90" in log and "step:2" in log.replace(" ", "")
+
+
+def lerobot_command(name: str, *args: str, cwd: Path) -> subprocess.CompletedProcess:
+    """One of LeRobot's console scripts from this venv, offline, its output captured."""
+    env = {**os.environ, "HF_HUB_OFFLINE": "1", "HF_DATASETS_OFFLINE": "1", "OMP_NUM_THREADS": "1"}
+    cli = Path(sys.executable).with_name(name)
+    return subprocess.run([str(cli), *args], env=env, cwd=cwd, capture_output=True, text=True, timeout=300)
+
+
+def test_lerobots_viewer_saves_an_episode_and_lerobot_info_finds_ffmpeg(dataset, tmp_path: Path) -> None:
+    import rerun as rr
+
+    summary, _ = dataset
+    viewer = lerobot_command(
+        "lerobot-dataset-viz",
+        f"--repo-id={summary.repo_id}",
+        f"--root={summary.root}",
+        "--episode-index=1",
+        "--mode=local",
+        "--save=1",
+        f"--output-dir={tmp_path / 'viz'}",
+        "--num-workers=0",
+        cwd=tmp_path,
+    )
+    assert viewer.returncode == 0, viewer.stderr[-3000:]
+    saved = list((tmp_path / "viz").glob("*.rrd"))
+    assert len(saved) == 1, viewer.stdout[-2000:]
+    rows: dict[str, int] = {}
+    for chunk in rr.experimental.RrdReader(saved[0]).stream().to_chunks():  # pyright: ignore[reportAttributeAccessIssue]
+        rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+    for entity in ("/observation.images.cam_left", "/observation.images.cam_right", "/action", "/state"):
+        assert rows.get(entity) == 30, (entity, rows)  # episode 1's 30 frames
+    info = lerobot_command("lerobot-info", cwd=tmp_path)
+    assert info.returncode == 0, info.stderr[-3000:]
+    assert "FFmpeg version: N/A" not in info.stdout  # .ci/run installs the system FFmpeg torchcodec loads

@@ -10,6 +10,10 @@ Features of every frame (one frame per control step, the observation before the 
 - ``observation.environment_state``: the tactile region forces (N) on T1..T4, P1..P4 (8); with
   ``policy.observation: state`` also the object's pose (px py pz qw qx qy qz) and the drawer's opening (m),
   16 in all (LeRobot's Diffusion Policy reads this key and ignores unknown ones).
+- ``observation.tactile`` (8): the tactile region forces (N) on T1..T4, P1..P4 again, under one name
+  for every profile. LeRobot 0.6.1 has no tactile convention, so the project keeps its own named
+  feature; Diffusion Policy reads only ``observation.state``, images and the environment state, and
+  leaves this one to other readers (viewers, other policies).
 - ``action`` (23): the 16 joint targets and the commanded wrist pose. The LEAP hand sits on a
   floating (mocap) wrist, so a policy must command the wrist as well as the fingers: the action is
   the full command a rollout applied, and replaying actions reproduces the rollout.
@@ -56,6 +60,7 @@ STATE_NAMES = (*hd.JOINT_NAMES, *WRIST_NAMES)
 ACTION_NAMES = (*(f"{j}_target" for j in hd.JOINT_NAMES), *(f"{w}_cmd" for w in WRIST_NAMES))
 FORCE_NAMES = tuple(f"force_{r}" for r in ROBOT_REGIONS)
 OBJECT_NAMES = ("object_px", "object_py", "object_pz", "object_qw", "object_qx", "object_qy", "object_qz")
+TACTILE_KEY = "observation.tactile"
 # what observation.environment_state holds, per PolicyConfig.observation
 ENVIRONMENT_NAMES = {"images": FORCE_NAMES, "state": (*FORCE_NAMES, *OBJECT_NAMES, "drawer_opening")}
 # which rollouts of a task x method become its demonstrations, best first
@@ -315,6 +320,7 @@ def features(cfg: PolicyConfig) -> dict:
             "shape": (len(environment),),
             "names": list(environment),
         },
+        TACTILE_KEY: {"dtype": "float32", "shape": (len(FORCE_NAMES),), "names": list(FORCE_NAMES)},
         "action": {"dtype": "float32", "shape": (len(ACTION_NAMES),), "names": list(ACTION_NAMES)},
     }
 
@@ -410,7 +416,8 @@ def _replay(
         lengths = np.array([len(r) for r in batch])
         cams = [f"observation.images.{c}" for c in renderer.cameras]
         episodes = [
-            {k: [] for k in (*cams, "observation.state", "observation.environment_state", "action")} for _ in batch
+            {k: [] for k in (*cams, "observation.state", "observation.environment_state", TACTILE_KEY, "action")}
+            for _ in batch
         ]
         for t in range(lengths.max()):
             live = np.flatnonzero(lengths > t)
@@ -418,6 +425,7 @@ def _replay(
             errors.append(np.abs(env.hand_qpos[live] - recorded).max(axis=1))
             images = renderer.render(env, live)
             state, environment = observation_state(env), environment_state(env, observation)
+            forces = env.region_force
             targets, wrist = recorded_commands(batch, t)
             for k, i in enumerate(live):
                 ep = episodes[i]
@@ -425,6 +433,7 @@ def _replay(
                     ep[key].append(images[cam][k])
                 ep["observation.state"].append(state[i].astype(np.float32))
                 ep["observation.environment_state"].append(environment[i].astype(np.float32))
+                ep[TACTILE_KEY].append(forces[i].astype(np.float32))
                 ep["action"].append(np.concatenate([targets[i], wrist[i]]).astype(np.float32))
             env.step(targets, wrist[:, :3], wrist[:, 3:])
     finally:

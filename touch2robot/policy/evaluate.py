@@ -24,6 +24,7 @@ from touch2robot.comparison.statistics import wilson_interval
 from touch2robot.policy.config import VIDEO_BACKEND, PolicyConfig
 from touch2robot.policy.dataset import (
     FPS,
+    TACTILE_KEY,
     CameraRenderer,
     Rollout,
     environment_state,
@@ -106,6 +107,7 @@ def _observation(env: BatchEnv, renderer: CameraRenderer, observation: str) -> d
     obs = {f"observation.images.{cam}": img for cam, img in images.items()}
     obs["observation.state"] = observation_state(env).astype(np.float32)
     obs["observation.environment_state"] = environment_state(env, observation).astype(np.float32)
+    obs[TACTILE_KEY] = env.region_force.astype(np.float32)
     return obs
 
 
