@@ -255,13 +255,19 @@ def observation_state(env: BatchEnv) -> np.ndarray:
     return np.concatenate([env.hand_qpos, env.wrist_pose], axis=1)
 
 
+def tactile_state(env: BatchEnv) -> np.ndarray:
+    """(N, 8) ``observation.tactile`` (``FORCE_NAMES``): the tactile region forces (N)."""
+    return env.region_force
+
+
 def environment_state(env: BatchEnv, observation: str) -> np.ndarray:
     """(N, 8 | 16) ``observation.environment_state`` (``ENVIRONMENT_NAMES[observation]``): the tactile
     region forces and, for a state-only policy, the object's pose and the drawer's opening."""
+    forces = tactile_state(env)
     if observation == "images":
-        return env.region_force
+        return forces
     # the object's world pose, which the drawer has too (its raw coordinate is the slide's)
-    return np.concatenate([env.region_force, env.object_pos, env.object_quat, env.drawer_opening[:, None]], axis=1)
+    return np.concatenate([forces, env.object_pos, env.object_quat, env.drawer_opening[:, None]], axis=1)
 
 
 class CameraRenderer:
@@ -424,8 +430,11 @@ def _replay(
             recorded = np.stack([batch[i].joint_position[t] for i in live])
             errors.append(np.abs(env.hand_qpos[live] - recorded).max(axis=1))
             images = renderer.render(env, live)
-            state, environment = observation_state(env), environment_state(env, observation)
-            forces = env.region_force
+            state, environment, tactile = (
+                observation_state(env),
+                environment_state(env, observation),
+                tactile_state(env),
+            )
             targets, wrist = recorded_commands(batch, t)
             for k, i in enumerate(live):
                 ep = episodes[i]
@@ -433,7 +442,7 @@ def _replay(
                     ep[key].append(images[cam][k])
                 ep["observation.state"].append(state[i].astype(np.float32))
                 ep["observation.environment_state"].append(environment[i].astype(np.float32))
-                ep[TACTILE_KEY].append(forces[i].astype(np.float32))
+                ep[TACTILE_KEY].append(tactile[i].astype(np.float32))
                 ep["action"].append(np.concatenate([targets[i], wrist[i]]).astype(np.float32))
             env.step(targets, wrist[:, :3], wrist[:, 3:])
     finally:

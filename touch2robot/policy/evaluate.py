@@ -31,6 +31,7 @@ from touch2robot.policy.dataset import (
     observation_state,
     recorded_commands,
     reset_to_first_rows,
+    tactile_state,
 )
 
 # the GL backend is chosen when this is imported, before mujoco: keep it first
@@ -107,7 +108,7 @@ def _observation(env: BatchEnv, renderer: CameraRenderer, observation: str) -> d
     obs = {f"observation.images.{cam}": img for cam, img in images.items()}
     obs["observation.state"] = observation_state(env).astype(np.float32)
     obs["observation.environment_state"] = environment_state(env, observation).astype(np.float32)
-    obs[TACTILE_KEY] = env.region_force.astype(np.float32)
+    obs[TACTILE_KEY] = tactile_state(env).astype(np.float32)
     return obs
 
 
