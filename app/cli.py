@@ -223,7 +223,9 @@ def _check_profile(profile: str) -> Profile:
 def synth(profile: ProfileOpt = "smoke", data: DataOpt = None) -> None:
     """Write the simulated demonstrator's glove sessions (MCAP) into <data>/recordings, ground
     truth into <data>/groundtruth. Robot replays come from `touch2robot replay`."""
+    from schemas.rig import DEFAULT_RIG
     from touch2robot.config import load_profile
+    from touch2robot.ingest.rigs import write_rig
     from touch2robot.synth.generate import plan, write_recording
     from touch2robot.synth.ratings import write_ratings_csv
 
@@ -231,6 +233,7 @@ def synth(profile: ProfileOpt = "smoke", data: DataOpt = None) -> None:
     layout = _layout(data)
     config = load_profile(profile).synth
     jobs = plan(config)
+    write_rig(DEFAULT_RIG, layout.recordings)
     columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn())
     with Progress(*columns, console=console) as bar:
         task = bar.add_task("synthesising", total=len(jobs))
@@ -262,12 +265,24 @@ def ingest(
             "<recording>.session.yaml do not give it; repeat for several",
         ),
     ] = None,
+    rig: Annotated[
+        list[Path] | None,
+        typer.Option(
+            help="a rig file (topics, taxel regions, joint names, sensor channels; see simulated.rig.yaml in "
+            "<data>/recordings) besides the *.rig.yaml files in the recordings folder; repeat for several",
+            exists=True,
+            dir_okay=False,
+        ),
+    ] = None,
 ) -> None:
     """Ingest recordings (MCAP files, rosbag2 folders of MCAP or sqlite3 storage) into the Parquet lake and
-    DuckDB catalog (Prefect flow `ingest`, cached per file content): bad files are quarantined with a reason."""
+    DuckDB catalog (Prefect flow `ingest`, cached per file content): bad files are quarantined with a reason.
+    Each recording is read with the rig its session field `rig` names (default: the simulated rig)."""
     fields = _session_fields(session or [])
     _check_profile(profile)
     layout = _layout(data)
+    rig_files = [str(p.resolve()) for p in rig or []]
+    _check_rigs(folder or layout.recordings, rig_files, fields)
     result = _run_flow(
         "flows.ingest:ingest",
         dict,
@@ -275,8 +290,21 @@ def ingest(
         data=str(layout.root),
         folder=str(folder.resolve()) if folder else None,
         session=fields,
+        rig_files=rig_files,
     )
     _closing(layout, f"ingest ({profile})", {"ingest": result})
+
+
+def _check_rigs(folder: Path, rig_files: list[str], session: dict[str, str]) -> None:
+    """Every rig, and its topics against the recordings that name it, checked before any file is ingested;
+    a bad one ends the command (exit 2) naming the file and field."""
+    from touch2robot.ingest.rigs import RigError, checked_rigs
+
+    try:
+        checked_rigs(folder, rig_files, session)
+    except RigError as e:
+        console.print(f"[red]bad rig:[/red] {e}")
+        raise typer.Exit(2) from None
 
 
 def _session_fields(pairs: list[str]) -> dict[str, str]:

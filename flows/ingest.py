@@ -20,27 +20,38 @@ from tasks.runners import ProfileTaskRunner
 from touch2robot import datasets
 from touch2robot.config import load_profile
 from touch2robot.ingest import link_replays, recording_digest, recording_rows
+from touch2robot.ingest.rigs import checked_rigs
 from touch2robot.settings import DataLayout
 
 
 @flow(name="ingest", task_runner=ProfileTaskRunner(), log_prints=True)
 def ingest(
-    profile: str = "smoke", data: str | None = None, folder: str | None = None, session: dict[str, str] | None = None
+    profile: str = "smoke",
+    data: str | None = None,
+    folder: str | None = None,
+    session: dict[str, str] | None = None,
+    rig_files: list[str] | None = None,
 ) -> dict:
     """Ingest every recording under ``folder`` (default ``<data>/recordings``): MCAP files and rosbag2
-    folders; ``session`` gives the session fields a recording's own sources lack. Bad files are
-    quarantined with a reason; contacts and thresholds are extracted; the catalog is refreshed."""
+    folders; ``session`` gives the session fields a recording's own sources lack; each recording is read
+    with the rig it names (``*.rig.yaml`` in the folder, or ``rig_files``), every rig checked before any
+    file is ingested. Bad files are quarantined with a reason; contacts and thresholds are extracted; the
+    catalog is refreshed."""
     layout = DataLayout.from_env(data)
     config = load_profile(profile).contacts
     lake = str(layout.lake)
-    scan = datasets.recording_files(Path(folder or layout.recordings))
+    recordings = Path(folder or layout.recordings)
+    rigs = checked_rigs(recordings, rig_files or [], session or {}).definitions()
+    scan = datasets.recording_files(recordings)
     for entry, why in scan.skipped:
         get_run_logger().warning("skipped %s: %s", entry, why)
     paths = [str(p) for p in scan.recordings]
     digests = [recording_digest(Path(p)) for p in paths]
     results = [
         f.result()
-        for f in stored(ingest_recording, layout.results).map(paths, digests, unmapped(lake), unmapped(session or {}))
+        for f in stored(ingest_recording, layout.results).map(
+            paths, digests, unmapped(lake), unmapped(session or {}), unmapped(rigs)
+        )
     ]
     current = {r["path"]: r["recording_id"] for r in results if r["status"] != RecordingStatus.QUARANTINED}
     remove_superseded(lake, current)

@@ -1,16 +1,15 @@
-"""ROS 2 message definitions, topics and rates of the three recording kinds (MCAP, CDR).
+"""ROS 2 message definitions and the streams of the three recording kinds (MCAP, CDR).
 
 This is the contract between a rig (real or simulated) and ingestion: a recording is
-accepted only if every required topic is present with exactly these message types.
-Standard types are used where they fit; the two project types are declared here in
-ROS 2 ``.msg`` syntax and written into each file's schema records.
+accepted only if every stream of its kind is present with exactly these message types.
+Which topic carries a stream, at what rate, and the glove's and robot's array layouts are
+the rig's (schemas/rig.py). Standard types are used where they fit; the two project types
+are declared here in ROS 2 ``.msg`` syntax and written into each file's schema records.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-
-from schemas.glove import GLOVE_JOINT_NAMES, N_TAXELS
 
 SCHEMA_VERSION = "1"
 METADATA_NAME = "touch2robot"  # MCAP metadata record holding kind/task/subject/...
@@ -47,6 +46,17 @@ MSG_DEFINITIONS: dict[str, str] = {
     "geometry_msgs/msg/PoseArray": _with_deps(
         "std_msgs/Header header\ngeometry_msgs/Pose[] poses\n", _HEADER_DEPS + _POSE_DEPS
     ),
+    "tf2_msgs/msg/TFMessage": _with_deps(
+        "geometry_msgs/TransformStamped[] transforms\n",
+        [
+            ("geometry_msgs/TransformStamped", "std_msgs/Header header\nstring child_frame_id\nTransform transform\n"),
+            ("geometry_msgs/Transform", "Vector3 translation\nQuaternion rotation\n"),
+            ("geometry_msgs/Vector3", _POINT),
+            ("geometry_msgs/Quaternion", _QUAT),
+            *_HEADER_DEPS,
+        ],
+    ),
+    "std_msgs/msg/String": "string data\n",
 }
 
 LEAP_JOINT_NAMES: tuple[str, ...] = (
@@ -56,17 +66,13 @@ LEAP_JOINT_NAMES: tuple[str, ...] = (
     "th_cmc", "th_axl", "th_mcp", "th_ipl",
 )  # fmt: skip
 
-N_TWINTAC_CHANNELS = 16  # 4 fingertip sensors (thumb, index, middle, ring) x 4 channels
-TWINTAC_CHANNEL_REGION: tuple[str, ...] = tuple(r for r in ("T1", "T2", "T3", "T4") for _ in range(4))
-N_FSR_CHANNELS = 4
-FSR_CHANNEL_REGION: tuple[str, ...] = ("P1", "P2", "P3", "P4")
 N_KEYPOINTS = 21
 
 
 @dataclass(frozen=True)
 class Topic:
-    """A topic of the contract: its type, nominal rate, the table it lands in, and the
-    fixed array length(s) its payload must have."""
+    """A topic of one recording as its rig names it: the stream it carries (also the lake table it lands
+    in), its type, nominal rate, and the fixed array length(s) its payload must have."""
 
     name: str
     msg_type: str
@@ -76,38 +82,33 @@ class Topic:
     joint_names: tuple[str, ...] | None = None
 
 
-GLOVE_TOPICS: tuple[Topic, ...] = (
-    Topic("/glove/taxels", "touch2robot_msgs/msg/TactileArray", 100.0, "taxels", N_TAXELS),
-    Topic(
-        "/glove/hand_joints",
-        "sensor_msgs/msg/JointState",
-        60.0,
-        "hand_joints",
-        len(GLOVE_JOINT_NAMES),
-        GLOVE_JOINT_NAMES,
-    ),
-    Topic("/glove/keypoints", "geometry_msgs/msg/PoseArray", 60.0, "hand_keypoints", N_KEYPOINTS),
-    Topic("/glove/wrist_pose", "geometry_msgs/msg/PoseStamped", 60.0, "wrist_pose"),
-    Topic("/object/pose", "geometry_msgs/msg/PoseStamped", 100.0, "object_pose"),
-)
-
-REPLAY_TOPICS: tuple[Topic, ...] = (
-    Topic("/leap/joint_states", "sensor_msgs/msg/JointState", 50.0, "robot_joint_states", 16, LEAP_JOINT_NAMES),
-    Topic("/leap/joint_targets", "sensor_msgs/msg/JointState", 20.0, "robot_joint_targets", 16, LEAP_JOINT_NAMES),
-    Topic("/twintac/raw", "touch2robot_msgs/msg/TactileArray", 100.0, "twintac", N_TWINTAC_CHANNELS),
-    Topic("/fsr/palm", "touch2robot_msgs/msg/TactileArray", 50.0, "fsr", N_FSR_CHANNELS),
-    Topic("/replay/reference_time", "touch2robot_msgs/msg/ReferenceTime", 20.0, "time_map"),
-)
-
-CALIBRATION_TOPICS: tuple[Topic, ...] = (
-    Topic("/twintac/raw", "touch2robot_msgs/msg/TactileArray", 100.0, "twintac", N_TWINTAC_CHANNELS),
-)
-
-TOPICS_BY_KIND: dict[str, tuple[Topic, ...]] = {
-    "glove_session": GLOVE_TOPICS,
-    "robot_replay": REPLAY_TOPICS,
-    "robot_calibration": CALIBRATION_TOPICS,
+# Every stream of the contract: its message type. A rig file (schemas/rig.py) gives each its topic name
+# and rate, and the array lengths of its own glove and robot.
+STREAM_TYPES: dict[str, str] = {
+    "taxels": "touch2robot_msgs/msg/TactileArray",
+    "hand_joints": "sensor_msgs/msg/JointState",
+    "hand_keypoints": "geometry_msgs/msg/PoseArray",
+    "wrist_pose": "geometry_msgs/msg/PoseStamped",
+    "object_pose": "geometry_msgs/msg/PoseStamped",
+    "robot_joint_states": "sensor_msgs/msg/JointState",
+    "robot_joint_targets": "sensor_msgs/msg/JointState",
+    "twintac": "touch2robot_msgs/msg/TactileArray",
+    "fsr": "touch2robot_msgs/msg/TactileArray",
+    "time_map": "touch2robot_msgs/msg/ReferenceTime",
 }
+
+# The streams each kind of recording must carry (each lands in the lake table of its name).
+STREAMS_BY_KIND: dict[str, tuple[str, ...]] = {
+    "glove_session": ("taxels", "hand_joints", "hand_keypoints", "wrist_pose", "object_pose"),
+    "robot_replay": ("robot_joint_states", "robot_joint_targets", "twintac", "fsr", "time_map"),
+    "robot_calibration": ("twintac",),
+}
+
+# Streams a recorder may add for viewers (Foxglove's 3D panel): the wrist's transform and the robot's URDF.
+# Ingest reads neither.
+TF_TOPIC = Topic("/tf", "tf2_msgs/msg/TFMessage", 60.0, "tf")
+ROBOT_DESCRIPTION_TOPIC = Topic("/robot_description", "std_msgs/msg/String", 0.0, "robot_description")
+VIEWER_TOPICS: tuple[Topic, ...] = (TF_TOPIC, ROBOT_DESCRIPTION_TOPIC)
 
 # Metadata keys every recording carries (values are strings, "" when not applicable).
 METADATA_KEYS: dict[str, tuple[str, ...]] = {

@@ -44,7 +44,7 @@ FIELD_BOUNDS: dict[tuple[str, str], Bounds] = {
 POSE_FIELDS = {"pose", "poses"}  # position bounded by POSITION; orientation a unit quaternion
 QUATERNION_TOLERANCE = 1e-3
 # Tracked keypoints carry positions only: a tracker without orientations may send zero quaternions.
-POSITION_ONLY_TOPICS = {"/glove/keypoints"}
+POSITION_ONLY_STREAMS = {"hand_keypoints"}
 
 # A demonstration or replay lasts seconds to minutes; an hour-long file means a clock fault.
 MAX_RECORDING_S = 3600.0

@@ -35,14 +35,14 @@ _RECORDING_ID = "the recording (recordings.recording_id)"
 _T = "time (s) since the recording's first message"
 
 
-def _stream(column: str, width: int) -> pa.Schema:
+def _stream(column: str, width: int | None) -> pa.Schema:
     """A sensor stream of one recording: its id, the time in seconds since the recording's
-    first message, and a fixed-width float32 array per sample."""
+    first message, and a float32 array per sample (fixed-width, or as wide as the rig's array)."""
     return pa.schema(
         [
             pa.field("recording_id", pa.string(), nullable=False),
             pa.field("t", pa.float64(), nullable=False),
-            pa.field(column, pa.list_(pa.float32(), width), nullable=False),
+            pa.field(column, pa.list_(pa.float32(), width if width is not None else -1), nullable=False),
         ]
     )
 
@@ -65,6 +65,8 @@ recordings = pa.schema(
         pa.field("reference_recording", pa.string()),
         pa.field("calibration_recording", pa.string()),
         pa.field("trajectory", pa.string()),
+        pa.field("rig", pa.string()),
+        pa.field("rig_definition", pa.string()),
         pa.field("start_time_s", pa.float64()),
         pa.field("end_time_s", pa.float64()),
         pa.field("duration_s", pa.float64()),
@@ -89,6 +91,8 @@ recordings_doc = TableDoc(
         "reference_recording": "replay: file name of the glove session it replays",
         "calibration_recording": "replay: file name of its TwinTac calibration",
         "trajectory": "replay: the robot trajectory executed (a rollouts rollout_id); NULL when the rig does not say",
+        "rig": "the rig it was read with (its session field rig; simulated when it names none); NULL if quarantined",
+        "rig_definition": "JSON: that rig file's content (schemas/rig.py): topics, taxel regions, joints, channels",
         "start_time_s": "first message's timestamp (s)",
         "end_time_s": "last message's timestamp (s)",
         "duration_s": "end_time_s - start_time_s",
@@ -100,11 +104,11 @@ recordings_doc = TableDoc(
 )
 
 # --- Streams of glove sessions -------------------------------------------------
-taxels = _stream("values", 256)
+taxels = _stream("values", None)
 taxels_doc = _stream_doc(
-    "glove tactile frames (100 Hz)",
+    "glove tactile frames (100 Hz on the simulated rig)",
     "values",
-    "256 taxel readings, schemas.glove.TAXEL_REGION order",
+    "one reading per taxel, as many as the rig's glove.n_taxels (256 on the simulated rig), in the rig's order",
 )
 
 hand_joints = _stream("position", 20)
@@ -173,18 +177,18 @@ robot_joint_targets_doc = _stream_doc(
     "16 commanded joint positions (rad), LEAP_JOINT_NAMES order",
 )
 
-twintac = _stream("values", 16)
+twintac = _stream("values", None)
 twintac_doc = _stream_doc(
-    "TwinTac fingertip sensor frames of replays and calibrations (100 Hz)",
+    "TwinTac fingertip sensor frames of replays and calibrations (100 Hz on the simulated rig)",
     "values",
-    "16 raw channels: 4 per fingertip sensor, thumb, index, middle, ring (T1..T4)",
+    "raw channels in the rig's robot.twintac order (simulated rig: 16, 4 per fingertip T1..T4)",
 )
 
-fsr = _stream("values", 4)
+fsr = _stream("values", None)
 fsr_doc = _stream_doc(
-    "palm force-sensing resistors of robot replays (50 Hz)",
+    "palm force-sensing resistors of robot replays (50 Hz on the simulated rig)",
     "values",
-    "4 raw readings (FSR native units) of palm pads P1..P4",
+    "raw readings in the rig's robot.fsr order (simulated rig: 4 in FSR native units, P1..P4)",
 )
 
 time_map = pa.schema(

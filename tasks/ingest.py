@@ -21,6 +21,7 @@ from touch2robot import lake as lake_io
 from touch2robot.contacts import ContactsConfig
 from touch2robot.contacts.extract import human_contacts, replay_contacts
 from touch2robot.ingest import ingest_file, recording_rows, superseded_ids
+from touch2robot.ingest.rigs import rigs_from
 from touch2robot.settings import DataLayout
 
 
@@ -30,10 +31,12 @@ from touch2robot.settings import DataLayout
     retries=1,
     task_run_name="ingest-{content_sha:.12}",
 )
-def ingest_recording(path: str, content_sha: str, lake: str, session: dict[str, str] | None = None) -> dict:
-    """Ingest one recording (keyed by its content hash, sidecar included, and the command line's session
-    fields) into the lake."""
-    result = ingest_file(Path(path), Path(lake), session)
+def ingest_recording(
+    path: str, content_sha: str, lake: str, session: dict[str, str] | None = None, rigs: dict[str, dict] | None = None
+) -> dict:
+    """Ingest one recording (keyed by its content hash, sidecar included, the command line's session
+    fields and the rigs' definitions) into the lake."""
+    result = ingest_file(Path(path), Path(lake), session, rigs_from(rigs) if rigs else None)
     if result.status == RecordingStatus.QUARANTINED:
         get_run_logger().warning("quarantined %s: %s", path, result.reason)
     return asdict(result)

@@ -18,7 +18,7 @@ from touch2robot.sim.config import SimConfig
 from touch2robot.twin.config import TwinConfig
 from touch2robot.twin.plan import ReplayJob, Skipped
 
-TWIN_RIG = "twin"  # the `rig` metadata of every recording the twin writes
+TWIN = "twin"  # what executed a replay (the replays table's rig column); its recordings name the rig file RIG
 REPLAY_MODULES = (
     "touch2robot.twin",
     "touch2robot.sim",
@@ -46,7 +46,7 @@ def replay_on_twin(job: ReplayJob, rollouts_digest: str, sim: SimConfig, twin: T
     import pyarrow.parquet as pq
 
     from touch2robot.sim.guard import LostPhysicsError
-    from touch2robot.twin.replay import replay_rollout
+    from touch2robot.twin.replay import RIG, replay_rollout
 
     table = pq.read_table(job.rollouts_file)
     rollout = table.filter(pc.field("rollout_id") == job.trajectory).sort_by("step")
@@ -59,7 +59,7 @@ def replay_on_twin(job: ReplayJob, rollouts_digest: str, sim: SimConfig, twin: T
             job.twin_seed(seed),
             job.replay_path,
             job.calibration_path,
-            job.metadata(TWIN_RIG),
+            job.metadata(RIG.name),
         )
     except LostPhysicsError as e:
         get_run_logger().warning("replay %s of %s on %s failed: %s", job.trajectory, job.method, job.task, e)
@@ -80,7 +80,7 @@ def _row(task_name: str, method: str, seed: int, status: str, reason: str, **val
         "seed": seed,
         "status": status,
         "reason": reason,
-        "rig": TWIN_RIG,
+        "rig": TWIN,
         **values,
     }
 

@@ -163,7 +163,7 @@ def write_twin_replays(root: Path, method: str = "touch2robot", twin=None, steps
             "reference_recording": glove.name,
             "calibration_recording": calibration.name,
             "trajectory": rid,
-            "rig": "twin",
+            "rig": "simulated",  # the twin records as the built-in rig
         }
         replay_rollout(rows, SimConfig(threads=1), twin or TwinConfig(), (k,), replay, calibration, metadata)
         written += [replay, calibration]

@@ -12,7 +12,8 @@ import pytest
 from mcap.writer import Writer
 
 from schemas.glove import GLOVE_JOINT_NAMES
-from schemas.messages import GLOVE_TOPICS, METADATA_NAME, MSG_DEFINITIONS, SCHEMA_VERSION
+from schemas.messages import METADATA_NAME, MSG_DEFINITIONS, SCHEMA_VERSION
+from schemas.rig import DEFAULT_RIG
 from touch2robot import lake as lake_io
 from touch2robot.ingest import ingest_file, link_replays, recording_rows, superseded_ids
 from touch2robot.recording import cdr
@@ -31,7 +32,7 @@ def test_glove_session_lands_in_every_stream_table(smoke_data: Path, tmp_path: P
     lake = tmp_path / "lake"
     result = ingest_file(_glove(smoke_data), lake)
     assert result.status == "ingested" and result.kind == "glove_session"
-    for topic in GLOVE_TOPICS:
+    for topic in DEFAULT_RIG.topics("glove_session"):
         table = pq.read_table(lake_io.file_path(lake, topic.table, result.recording_id))
         assert table.num_rows > 0
         t = table["t"].to_numpy()
@@ -107,7 +108,7 @@ class _OtherRecorder:
         self.writer = Writer(self.file)
         self.writer.start(profile="ros2")
         self.channels = {}
-        for topic in GLOVE_TOPICS:
+        for topic in DEFAULT_RIG.topics("glove_session"):
             name = self.taxel_schema if topic.name == "/glove/taxels" else topic.msg_type
             schema = self.writer.register_schema(name, "ros2msg", MSG_DEFINITIONS[topic.msg_type].encode())
             self.channels[topic.name] = self.writer.register_channel(topic.name, "cdr", schema)
@@ -225,3 +226,39 @@ def test_a_copied_recordings_folder_keeps_its_replays_linked(replay_data: Path, 
     assert {Path(r["path"]).parent for r in rows} == {copy.resolve()}
     _, links, problems = link_replays(rows)
     assert problems == [] and len(links) == 1 and links[0].reference is not None
+
+
+def test_a_glove_session_carries_the_wrist_as_tf_and_the_robot_description_for_foxglove(smoke_data: Path) -> None:
+    """/tf (the wrist, world -> the URDF's root) and /robot_description (the LEAP Hand's URDF), read back with
+    rosbags' own ROS 2 message types: what Foxglove's 3D panel needs to show the hand."""
+    import xml.etree.ElementTree as ET
+
+    from mcap.reader import make_reader
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_HUMBLE)
+    messages: dict[str, list] = {}
+    with open(_glove(smoke_data), "rb") as f:
+        for schema, channel, message in make_reader(f).iter_messages():
+            if channel.topic in ("/tf", "/robot_description", "/glove/wrist_pose"):
+                messages.setdefault(channel.topic, []).append(
+                    (message.log_time, store.deserialize_cdr(message.data, schema.name if schema else ""))
+                )
+    (_, description), *more = messages["/robot_description"]
+    assert not more
+    urdf = ET.fromstring(description.data)
+    root_link = urdf.find("link")
+    assert urdf.get("name") == "leap_hand_right" and root_link is not None and root_link.get("name") == "base"
+    tf, wrist = messages["/tf"], messages["/glove/wrist_pose"]
+    assert len(tf) == len(wrist) > 0
+    for (t_tf, msg), (t_wrist, pose) in zip(tf, wrist, strict=True):
+        (transform,) = msg.transforms
+        assert t_tf == t_wrist and transform.header.frame_id == "world" and transform.child_frame_id == "base"
+        p, q = transform.transform.translation, transform.transform.rotation
+        assert (p.x, p.y, p.z) == (pose.pose.position.x, pose.pose.position.y, pose.pose.position.z)
+        assert (q.w, q.x, q.y, q.z) == (
+            pose.pose.orientation.w,
+            pose.pose.orientation.x,
+            pose.pose.orientation.y,
+            pose.pose.orientation.z,
+        )

@@ -14,7 +14,8 @@ import yaml
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from schemas.messages import METADATA_NAME, MSG_DEFINITIONS, TOPICS_BY_KIND
+from schemas.messages import METADATA_NAME, MSG_DEFINITIONS
+from schemas.rig import DEFAULT_RIG
 from touch2robot import lake as lake_io
 from touch2robot.ingest import ingest_file, link_replays, read_recording, recording_rows
 from touch2robot.ingest.scan import find_recordings
@@ -67,7 +68,7 @@ def write_bag(source: Path, bag: Path, storage: str, custom_data: dict[str, str]
 
 def _stream_tables(lake: Path, recording_id: str, kind: str) -> dict[str, pa.Table]:
     tables = {}
-    for topic in TOPICS_BY_KIND[kind]:
+    for topic in DEFAULT_RIG.topics(kind):
         table = pq.read_table(lake_io.file_path(lake, topic.table, recording_id))
         tables[topic.table] = table.drop_columns([c for c in table.column_names if c == "recording_id"])
     return tables

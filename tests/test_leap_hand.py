@@ -203,3 +203,32 @@ def test_urdf_base_is_dex_urdf_wrist_frame() -> None:
     origin_in_palm = palm.xmat.reshape(3, 3).T @ (base.xpos - palm.xpos)
     np.testing.assert_allclose(origin_in_palm, (-0.098, -0.038, 0.0), atol=1e-6)
     assert math.isclose(float(np.linalg.det(rot_palm)), 1.0, abs_tol=1e-9)
+
+
+def test_urdf_visuals_sit_where_the_mjcf_collision_geometry_is() -> None:
+    """Foxglove draws the URDF's visuals: each capsule (a cylinder there) and box lies where the MJCF's does."""
+    urdf, mjcf = _urdf_model(), mujoco.MjModel.from_xml_string(hand_mjcf())
+    placed = []
+    for model in (urdf, mjcf):
+        data = mujoco.MjData(model)
+        mujoco.mj_kinematics(model, data)
+        palm = data.body("palm")
+        rows: dict[str, list] = {}
+        for g in range(model.ngeom):
+            body = model.body(model.geom_bodyid[g]).name
+            kind = model.geom_type[g]
+            if kind not in (mujoco.mjtGeom.mjGEOM_CYLINDER, mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_BOX):
+                continue
+            rel = palm.xmat.reshape(3, 3).T @ (data.geom_xpos[g] - palm.xpos)
+            axis = palm.xmat.reshape(3, 3).T @ data.geom_xmat[g].reshape(3, 3)[:, 2]
+            rows.setdefault(body, []).append((kind == mujoco.mjtGeom.mjGEOM_BOX, rel, axis))
+        placed.append(rows)
+    urdf_rows, mjcf_rows = placed
+    assert set(urdf_rows) <= set(mjcf_rows)
+    for body, geoms in mjcf_rows.items():
+        assert len(urdf_rows.get(body, [])) == len(geoms), body
+        for is_box, rel, axis in geoms:
+            match = [(b, r, a) for b, r, a in urdf_rows[body] if b == is_box and np.linalg.norm(r - rel) < 1e-5]
+            assert match, (body, rel)
+            if not is_box:  # a cylinder's axis is the capsule's, either way round
+                assert abs(abs(float(match[0][2] @ axis)) - 1.0) < 1e-6, body

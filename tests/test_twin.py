@@ -14,6 +14,7 @@ from mujoco import rollout as mj_rollout
 from pydantic import ValidationError
 
 from schemas.messages import LEAP_JOINT_NAMES
+from schemas.rig import DEFAULT_RIG
 from schemas.tables import ROBOT_REGIONS
 from schemas.vocabulary import Method, RecordingKind
 from touch2robot.contacts import ContactsConfig
@@ -52,7 +53,7 @@ def _metadata(task: str) -> dict[str, str]:
         "method": Method.TOUCH2ROBOT,
         "reference_recording": f"{task}_s00_d01_glove.mcap",
         "calibration_recording": "calibration.mcap",
-        "rig": "hardware-twin",
+        "rig": DEFAULT_RIG.name,
     }
 
 
@@ -182,7 +183,7 @@ def test_recordings_follow_the_contract(rollouts, tmp_path):
     replay, calibration = read_recording(outcome.replay_path), read_recording(outcome.calibration_path)
     assert replay.kind == RecordingKind.ROBOT_REPLAY and calibration.kind == RecordingKind.ROBOT_CALIBRATION
     assert {k: replay.metadata[k] for k in _metadata("pick")} == _metadata("pick")
-    assert calibration.metadata["rig"] == "hardware-twin" and calibration.metadata["sensor"] == "twintac"
+    assert calibration.metadata["rig"] == DEFAULT_RIG.name and calibration.metadata["sensor"] == "twintac"
     duration = (replay.end_ns - replay.start_ns) / 1e9
     assert duration == pytest.approx(outcome.duration_s, abs=0.06)
     assert outcome.steps == 60 * SIM.substeps + round(outcome.perturbation["latency_s"] / SIM.timestep) + 50

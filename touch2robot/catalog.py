@@ -64,6 +64,8 @@ def _sql_type(t: pa.DataType) -> str:
         return "TIMESTAMPTZ"
     if pa.types.is_fixed_size_list(t):
         return f"{_sql_type(t.value_type)}[{t.list_size}]"
+    if pa.types.is_list(t):  # an array as wide as the rig's (glove taxels, TwinTac and FSR channels)
+        return f"{_sql_type(t.value_type)}[]"
     raise TypeError(f"no SQL type for {t}")
 
 

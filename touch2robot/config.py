@@ -145,7 +145,7 @@ def load_profile(name_or_path: str | Path) -> Profile:
             f"unknown profile {name_or_path!r}: use one of {', '.join(BUILTIN_PROFILES)} or a YAML file path"
         )
     try:
-        data = yaml.load(text, Loader=_UniqueKeyLoader)
+        data = yaml.load(text, Loader=UniqueKeyLoader)
     except yaml.YAMLError as e:
         raise ProfileError(f"{origin}: not valid YAML ({e})") from None
     if data is None:
@@ -153,7 +153,7 @@ def load_profile(name_or_path: str | Path) -> Profile:
         raise ProfileError(f"{origin}: the profile is empty; set at least its name (see the built-in profiles)")
     if not isinstance(data, dict):
         raise ProfileError(f"{origin}: expected a mapping of stage sections, got {type(data).__name__}")
-    _refuse_bools_as_numbers(Profile, data, origin, ())
+    refuse_bools_as_numbers(Profile, data, origin, ())
     try:
         return Profile.model_validate(_merged(Profile().model_dump(), data))
     except ValidationError as e:
@@ -161,7 +161,7 @@ def load_profile(name_or_path: str | Path) -> Profile:
         raise ProfileError(f"{origin}: {fields}") from None
 
 
-class _UniqueKeyLoader(yaml.SafeLoader):
+class UniqueKeyLoader(yaml.SafeLoader):
     """YAML's safe loader, except that a key given twice in one mapping is an error (plain YAML keeps the
     last, so a profile could set a value that never takes effect)."""
 
@@ -185,7 +185,7 @@ def _leaf_types(annotation: object) -> set[object]:
     return {typing.get_origin(annotation) or annotation}
 
 
-def _refuse_bools_as_numbers(model: type[BaseModel], data: dict, origin: str, loc: tuple[str, ...]) -> None:
+def refuse_bools_as_numbers(model: type[BaseModel], data: dict, origin: str, loc: tuple[str, ...]) -> None:
     """pydantic reads ``true`` as 1 where a number belongs (``n_envs: true`` would run one env): refuse it,
     naming the field."""
     for key, value in data.items():
@@ -201,7 +201,7 @@ def _check_value(annotation: object, value: object, origin: str, loc: tuple[str,
     args = [a for a in typing.get_args(annotation) if a is not type(None)]
     for leaf in leaves:
         if isinstance(leaf, type) and issubclass(leaf, BaseModel) and isinstance(value, dict):
-            _refuse_bools_as_numbers(leaf, value, origin, loc)
+            refuse_bools_as_numbers(leaf, value, origin, loc)
     if typing.get_origin(annotation) is dict and isinstance(value, dict) and len(args) == 2:
         for key, item in value.items():
             _check_value(args[1], item, origin, (*loc, str(key)))

@@ -23,14 +23,11 @@ import numpy as np
 import pyarrow as pa
 from scipy.stats import trim_mean
 
-from schemas.glove import TAXEL_REGION
-from schemas.messages import FSR_CHANNEL_REGION, TWINTAC_CHANNEL_REGION
+from schemas.rig import DEFAULT_RIG, Glove, Robot
 from schemas.tables import FINGERTIP_REGIONS, HUMAN_REGIONS, PALM_REGIONS, ROBOT_REGIONS
 from touch2robot.contacts.config import ContactsConfig
 
 __all__ = ["ContactsConfig", "GloveThresholds", "glove_contacts", "real_contacts", "twintac_thresholds"]
-
-_TAXEL_REGION = np.asarray(TAXEL_REGION)
 
 
 @dataclass(frozen=True)
@@ -49,10 +46,14 @@ def _moving_average(x: np.ndarray, n: int) -> np.ndarray:
     return np.stack([np.convolve(pad[:, k], kernel, mode="valid") for k in range(x.shape[1])], 1)
 
 
-def regional_responses(values: np.ndarray, config: ContactsConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Baseline-corrected responses (T, 9) in HUMAN_REGIONS order (unsmoothed), and the per-taxel baseline."""
-    if values.ndim != 2 or values.shape[1] != len(_TAXEL_REGION):
-        raise ValueError(f"glove values must be (time, {len(_TAXEL_REGION)}), got {values.shape}")
+def regional_responses(
+    values: np.ndarray, config: ContactsConfig, glove: Glove = DEFAULT_RIG.glove
+) -> tuple[np.ndarray, np.ndarray]:
+    """Baseline-corrected responses (T, 9) in HUMAN_REGIONS order (unsmoothed), and the per-taxel baseline;
+    ``glove``: the rig's taxel layout."""
+    taxel_region = np.asarray(glove.region_of_taxel())
+    if values.ndim != 2 or values.shape[1] != len(taxel_region):
+        raise ValueError(f"glove values must be (time, {len(taxel_region)}), got {values.shape}")
     baseline = np.quantile(values, config.baseline_quantile, axis=0)
     corrected = values - baseline
     # common mode: most taxels are unloaded at any instant, so a robust mean over the glove
@@ -60,7 +61,7 @@ def regional_responses(values: np.ndarray, config: ContactsConfig) -> tuple[np.n
     # A trimmed mean, not the median: counts are integers and a median of integers is
     # biased by up to half a count, which adds up over a region's taxels.
     corrected -= trim_mean(corrected, 0.25, axis=1)[:, None]
-    resp = np.stack([corrected[:, r == _TAXEL_REGION].sum(axis=1) for r in HUMAN_REGIONS], 1)
+    resp = np.stack([corrected[:, r == taxel_region].sum(axis=1) for r in HUMAN_REGIONS], 1)
     return resp, baseline
 
 
@@ -81,17 +82,28 @@ def glove_thresholds(resp: np.ndarray, baseline: np.ndarray, config: ContactsCon
     return GloveThresholds(tip, palm, noise, baseline)
 
 
+def region_limits(thr: GloveThresholds, config: ContactsConfig, glove: Glove) -> np.ndarray:
+    """Each region's threshold in HUMAN_REGIONS order: its group's, scaled where the rig gives the region
+    its own ``threshold_k`` in place of ``contacts.glove_noise_k``."""
+    limits = []
+    for r in HUMAN_REGIONS:
+        group = thr.fingertip if r in FINGERTIP_REGIONS else thr.palm
+        k = glove.threshold_k(r)
+        limits.append(group if k is None else group * k / config.glove_noise_k)
+    return np.asarray(limits)
+
+
 def glove_contacts(
-    t: np.ndarray, values: np.ndarray, config: ContactsConfig
+    t: np.ndarray, values: np.ndarray, config: ContactsConfig, glove: Glove = DEFAULT_RIG.glove
 ) -> tuple[np.ndarray, np.ndarray, GloveThresholds]:
-    """Binary human contacts (T, 9) in HUMAN_REGIONS order, the responses, and the thresholds."""
+    """Binary human contacts (T, 9) in HUMAN_REGIONS order, the responses, and the thresholds; ``glove``:
+    the rig's taxel layout."""
     if not np.isfinite(values).all():
         raise ValueError("glove values contain NaN/inf")
-    raw, baseline = regional_responses(values, config)
+    raw, baseline = regional_responses(values, config, glove)
     thr = glove_thresholds(raw, baseline, config)
     resp = _moving_average(raw, config.smoothing_samples)
-    limits = np.array([thr.fingertip if r in FINGERTIP_REGIONS else thr.palm for r in HUMAN_REGIONS])
-    return resp > limits, resp, thr
+    return resp > region_limits(thr, config, glove), resp, thr
 
 
 def twintac_thresholds(calibration: np.ndarray, config: ContactsConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -107,15 +119,20 @@ def real_contacts(
     twintac_threshold: np.ndarray,
     fsr: np.ndarray,
     config: ContactsConfig,
+    robot: Robot = DEFAULT_RIG.robot,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Real-robot contacts: fingertip region = any of its TwinTac channels above its
-    threshold -> (T_tt, 4) for T1..T4; palm pad = FSR value above the FSR threshold
-    (0 in native units) -> (T_fsr, 4) for P1..P4."""
+    threshold -> (T_tt, 4) for T1..T4; palm pad = any of its FSR channels above the FSR
+    threshold (0 in native units) -> (T_fsr, 4) for P1..P4. ``robot``: the rig's channels."""
     over = twintac > twintac_threshold
-    channel_region = np.asarray(TWINTAC_CHANNEL_REGION)
-    tips = np.stack([over[:, channel_region == r].any(axis=1) for r in ROBOT_REGIONS[:4]], 1)
-    palm_order = [FSR_CHANNEL_REGION.index(r) for r in ROBOT_REGIONS[4:]]
-    return tips, fsr[:, palm_order] > config.fsr_threshold
+    tips = by_region(over, robot.twintac.regions, ROBOT_REGIONS[:4], np.any)
+    return tips, by_region(fsr > config.fsr_threshold, robot.fsr.regions, ROBOT_REGIONS[4:], np.any)
+
+
+def by_region(channels: np.ndarray, channel_region: tuple[str, ...], regions: tuple[str, ...], reduce) -> np.ndarray:
+    """(T, channels) -> (T, regions): ``reduce`` (np.any, np.max, ...) over each region's channels."""
+    where = np.asarray(channel_region)
+    return np.stack([reduce(channels[:, where == r], axis=1) for r in regions], 1)
 
 
 def long_rows(

@@ -9,16 +9,30 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from schemas.glove import TAXEL_REGION
+from schemas.rig import DEFAULT_RIG, Rig
 from schemas.tables import HUMAN_REGIONS, ROBOT_REGIONS
 from schemas.vocabulary import Source
 from touch2robot import lake as lake_io
-from touch2robot.contacts import ContactsConfig, glove_contacts, long_rows, real_contacts, twintac_thresholds
+from touch2robot.contacts import (
+    ContactsConfig,
+    by_region,
+    glove_contacts,
+    long_rows,
+    real_contacts,
+    twintac_thresholds,
+)
 
 
 def _matrix(table: pa.Table, column: str) -> np.ndarray:
     col = table[column].combine_chunks()
     return col.flatten().to_numpy(zero_copy_only=False).reshape(len(col), -1)
+
+
+def rig_of(recording: dict) -> Rig:
+    """The rig a recording was ingested with (its ``recordings`` row), the default one for rows of a lake
+    ingested before rigs were recorded."""
+    definition = recording.get("rig_definition")
+    return Rig.model_validate_json(definition) if definition else DEFAULT_RIG
 
 
 def _read(lake: Path, table: str, recording_id: str) -> pa.Table:
@@ -32,9 +46,10 @@ def human_contacts(lake: Path, recording: dict, config: ContactsConfig) -> tuple
     """Contacts (source "human", the 8 robot-paired regions; T5 is dropped) and the two
     glove thresholds of one ingested glove session."""
     rid = recording["recording_id"]
+    glove = rig_of(recording).glove
     taxels = _read(lake, "taxels", rid)
     t = taxels["t"].to_numpy()
-    contact, resp, thr = glove_contacts(t, _matrix(taxels, "values"), config)
+    contact, resp, thr = glove_contacts(t, _matrix(taxels, "values"), config, glove)
     keep = [HUMAN_REGIONS.index(r) for r in ROBOT_REGIONS]
     rows = long_rows(
         source=Source.HUMAN,
@@ -49,7 +64,7 @@ def human_contacts(lake: Path, recording: dict, config: ContactsConfig) -> tuple
         contact=contact[:, keep],
         value=resp[:, keep],
     )
-    baseline = float(np.median(thr.baseline[np.asarray(TAXEL_REGION) != "-"]))
+    baseline = float(np.median(thr.baseline[np.asarray(glove.region_of_taxel()) != "-"]))
     method = (
         "k*robust-noise of the smoothed regional response "
         f"(k={config.glove_noise_k}, window={config.smoothing_samples})"
@@ -75,16 +90,17 @@ def replay_contacts(
     the reference trajectory's clock ``t_ref`` (the recorded time map, interpolated), and
     the TwinTac/FSR thresholds used."""
     rid = replay["recording_id"]
+    robot = rig_of(replay).robot
     threshold, mean, std = twintac_thresholds(_matrix(_read(lake, "twintac", calibration_id), "values"), config)
     twintac = _read(lake, "twintac", rid)
     fsr = _read(lake, "fsr", rid)
     tmap = _read(lake, "time_map", rid)
     map_t, map_ref = tmap["t"].to_numpy(), tmap["t_ref"].to_numpy()
     tt_raw, fsr_raw = _matrix(twintac, "values"), _matrix(fsr, "values")
-    tips, palm = real_contacts(tt_raw, threshold, fsr_raw, config)
+    tips, palm = real_contacts(tt_raw, threshold, fsr_raw, config, robot)
     t_tt, t_fsr = twintac["t"].to_numpy(), fsr["t"].to_numpy()
-    tt_values = tt_raw - mean
-    tip_value = np.stack([tt_values[:, 4 * k : 4 * k + 4].max(axis=1) for k in range(4)], 1)
+    tip_value = by_region(tt_raw - mean, robot.twintac.regions, ROBOT_REGIONS[:4], np.max)
+    palm_value = by_region(fsr_raw, robot.fsr.regions, ROBOT_REGIONS[4:], np.max)
     common = dict(
         source=Source.REAL,
         method=replay["method"],
@@ -109,21 +125,21 @@ def replay_contacts(
                 t_ref=np.interp(t_fsr, map_t, map_ref),
                 regions=ROBOT_REGIONS[4:],
                 contact=palm,
-                value=fsr_raw,
+                value=palm_value,
             ),
         ]
     )
-    n = len(threshold)
+    n, m = len(threshold), fsr_raw.shape[1]
     thresholds = pa.table(
         {
-            "recording_id": [rid] * (n + 4),
-            "sensor": ["twintac"] * n + ["fsr"] * 4,
-            "applies_to": [f"channel_{i}" for i in range(n)] + [f"channel_{i}" for i in range(4)],
-            "threshold": np.r_[threshold, np.full(4, config.fsr_threshold)],
-            "baseline": np.r_[mean, np.zeros(4)],
-            "noise": np.r_[std, np.zeros(4)],
+            "recording_id": [rid] * (n + m),
+            "sensor": ["twintac"] * n + ["fsr"] * m,
+            "applies_to": [f"channel_{i}" for i in range(n)] + [f"channel_{i}" for i in range(m)],
+            "threshold": np.r_[threshold, np.full(m, config.fsr_threshold)],
+            "baseline": np.r_[mean, np.zeros(m)],
+            "noise": np.r_[std, np.zeros(m)],
             "method": [f"calibration {calibration_id}: mean + {config.twintac_noise_k} std"] * n
-            + ["FSR native units, > threshold"] * 4,
+            + [f"{robot.fsr.units}, > threshold"] * m,
         }
     )
     return rows, thresholds

@@ -16,7 +16,8 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from schemas.messages import TOPICS_BY_KIND
+from schemas.messages import STREAMS_BY_KIND
+from schemas.rig import Rig
 from schemas.vocabulary import RecordingKind, RecordingStatus
 from touch2robot import lake as lake_io
 from touch2robot.ingest.reader import DecodedRecording, RecordingError, content_id, counts_json, read_recording
@@ -62,6 +63,8 @@ def _row(path: Path, recording_id: str, size: int, status: str, reason: str, rec
             "reference_recording": [meta.get("reference_recording")],
             "calibration_recording": [meta.get("calibration_recording")],
             "trajectory": [meta.get("trajectory") or None],
+            "rig": [rec.rig.name if rec else None],
+            "rig_definition": [rec.rig.model_dump_json() if rec else None],
             "seed": pa.array([int(meta["seed"]) if meta.get("seed") else None], pa.int64()),
             "start_time_s": [rec.start_ns / 1e9 if rec else None],
             "end_time_s": [rec.end_ns / 1e9 if rec else None],
@@ -74,12 +77,15 @@ def _row(path: Path, recording_id: str, size: int, status: str, reason: str, rec
     )
 
 
-def ingest_file(path: Path, lake: Path, session: Mapping[str, str] | None = None) -> IngestResult:
+def ingest_file(
+    path: Path, lake: Path, session: Mapping[str, str] | None = None, rigs: Mapping[str, Rig] | None = None
+) -> IngestResult:
     """Ingest one recording (an MCAP file or a rosbag2 folder) into the lake, or quarantine it with the
-    reason. ``session``: fields given on the command line where the recording's own sources lack them."""
+    reason. ``session``: fields given on the command line where the recording's own sources lack them;
+    ``rigs``: the rigs by name (``touch2robot.ingest.rigs.find_rigs``)."""
     path = Path(path).resolve()
     try:
-        rec = read_recording(path, session)
+        rec = read_recording(path, session, rigs)
     except RecordingError as e:
         try:
             rid, size = recording_digest(path)[:16], content_size(path)
@@ -126,7 +132,7 @@ def _stored_whole(lake: Path, rec: DecodedRecording, marker: Path) -> bool:
         or pq.read_table(marker, columns=["status"])["status"][0].as_py() != RecordingStatus.INGESTED
     ):
         return False
-    streams = {topic.table for topic in TOPICS_BY_KIND[rec.kind]}
+    streams = STREAMS_BY_KIND[rec.kind]
     return not any(lake_io.check(lake_io.file_path(lake, table, rec.recording_id)) for table in streams)
 
 

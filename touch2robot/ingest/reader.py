@@ -23,9 +23,10 @@ from schemas.messages import (
     METADATA_KEYS,
     OPTIONAL_METADATA_KEYS,
     SCHEMA_VERSION,
-    TOPICS_BY_KIND,
+    STREAMS_BY_KIND,
     Topic,
 )
+from schemas.rig import DEFAULT_RIG, RIG_SUFFIX, Rig
 from schemas.vocabulary import Method
 from touch2robot.ingest.sources import (
     SourceError,
@@ -61,6 +62,7 @@ class DecodedRecording:
     start_ns: int
     end_ns: int
     message_counts: dict[str, int] = field(default_factory=dict)
+    rig: Rig = DEFAULT_RIG
 
     @property
     def kind(self) -> str:
@@ -72,10 +74,13 @@ def content_id(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()[:16]
 
 
-def read_recording(path: Path, session: Mapping[str, str] | None = None) -> DecodedRecording:
+def read_recording(
+    path: Path, session: Mapping[str, str] | None = None, rigs: Mapping[str, Rig] | None = None
+) -> DecodedRecording:
     """Read, check and decode one recording (an MCAP file or a rosbag2 folder), or raise RecordingError.
     ``session``: fields given on the command line, used where no other source gives them
-    (``touch2robot.ingest.sources``)."""
+    (``touch2robot.ingest.sources``); ``rigs``: the rigs by name (default: the built-in one), the
+    recording's session field ``rig`` picks its own."""
     path = Path(path)
     try:
         container = read_container(path)
@@ -84,15 +89,15 @@ def read_recording(path: Path, session: Mapping[str, str] | None = None) -> Deco
         raise RecordingError(path, f"cannot read the file: {e.strerror}") from None
     except SourceError as e:
         raise RecordingError(path, str(e)) from None
-    metadata = session_metadata(container, sidecar, session or {})
+    metadata = session_metadata(container.record, container.custom_data, sidecar, session or {})
     kind = metadata.get("kind", "")
     if not kind:
         raise RecordingError(
             path,
-            f"no session metadata 'kind' ({', '.join(TOPICS_BY_KIND)}): give it in {where_to_give(path)}",
+            f"no session metadata 'kind' ({', '.join(STREAMS_BY_KIND)}): give it in {where_to_give(path)}",
         )
-    if kind not in TOPICS_BY_KIND:
-        raise RecordingError(path, f"metadata 'kind' is {kind!r}; expected one of {sorted(TOPICS_BY_KIND)}")
+    if kind not in STREAMS_BY_KIND:
+        raise RecordingError(path, f"metadata 'kind' is {kind!r}; expected one of {sorted(STREAMS_BY_KIND)}")
     missing_keys = [k for k in METADATA_KEYS[kind] if not metadata.get(k)]
     if missing_keys:
         raise RecordingError(
@@ -100,13 +105,24 @@ def read_recording(path: Path, session: Mapping[str, str] | None = None) -> Deco
             f"metadata lacks {', '.join(missing_keys)} for a {kind} recording: give it in {where_to_give(path)}",
         )
     _check_metadata(path, kind, metadata)
+    rigs = rigs or {DEFAULT_RIG.name: DEFAULT_RIG}
+    rig = rigs.get(metadata.get("rig") or DEFAULT_RIG.name)
+    if rig is None:
+        raise RecordingError(
+            path,
+            f"metadata 'rig' is {metadata['rig']!r}, a rig ingest does not know (it knows {', '.join(sorted(rigs))}): "
+            f"put {metadata['rig']}{RIG_SUFFIX} in the recordings folder or give `touch2robot ingest --rig FILE`",
+        )
 
     topics = container.topics
-    missing = [t.name for t in TOPICS_BY_KIND[kind] if t.name not in topics or not topics[t.name].payloads]
+    wanted = rig.topics(kind)
+    missing = [t.name for t in wanted if t.name not in topics or not topics[t.name].payloads]
     if missing:
-        raise RecordingError(path, f"missing topic(s) {', '.join(missing)} (required for a {kind} recording)")
+        raise RecordingError(
+            path, f"missing topic(s) {', '.join(missing)} (required for a {kind} recording on rig {rig.name!r})"
+        )
 
-    decoded = {topic.name: _decode_topic(path, topic, topics[topic.name]) for topic in TOPICS_BY_KIND[kind]}
+    decoded = {topic.name: _decode_topic(path, topic, topics[topic.name]) for topic in wanted}
     start = min(int(b.stamp_ns[0]) for b in decoded.values())
     end = max(int(b.stamp_ns[-1]) for b in decoded.values())
     _check_span(path, decoded, start, end)
@@ -119,6 +135,7 @@ def read_recording(path: Path, session: Mapping[str, str] | None = None) -> Deco
         start_ns=start,
         end_ns=end,
         message_counts={name: len(messages.payloads) for name, messages in topics.items()},
+        rig=rig,
     )
 
 
@@ -191,7 +208,7 @@ def _check_plausible(path: Path, topic: Topic, name: str, values: np.ndarray) ->
     if name in plaus.POSE_FIELDS:
         poses = values.reshape(len(values), -1, 7)
         _check_bounds(path, where, poses[..., :3].reshape(len(values), -1), plaus.POSITION)
-        if topic.name in plaus.POSITION_ONLY_TOPICS:
+        if topic.table in plaus.POSITION_ONLY_STREAMS:
             return
         with np.errstate(over="ignore"):  # a huge component is reported below, not warned about
             norm = np.linalg.norm(poses[..., 3:], axis=-1)

@@ -118,6 +118,35 @@ def read_container(path: Path) -> Container:
     return _read_bag(path) if is_bag(path) else _read_mcap(path)
 
 
+def peek(path: Path) -> tuple[set[str], dict[str, str] | None, dict[str, str]]:
+    """A recording's topics, project record and rosbag2 custom_data, from its summary (an MCAP file) or its
+    metadata.yaml (a rosbag2 folder), without reading its messages. Raises SourceError or OSError."""
+    if is_bag(path):
+        from rosbags.rosbag2 import Reader
+
+        try:
+            with Reader(path) as reader:
+                topics = {c.topic for c in reader.connections}
+        except Exception as e:  # rosbags' ReaderError and its storage plugins' own
+            raise SourceError(f"rosbag2 folder cannot be read ({type(e).__name__}: {e})") from None
+        return topics, None, _bag_custom_data(path / BAG_METADATA)
+    from mcap.reader import make_reader
+
+    try:
+        with open(path, "rb") as f:
+            reader = make_reader(f)
+            summary = reader.get_summary()
+            if summary is None:  # a file without a summary section: read it whole
+                container = _read_mcap(path)
+                return set(container.topics), container.record, {}
+            record = next((dict(m.metadata) for m in reader.iter_metadata() if m.name == METADATA_NAME), None)
+            return {c.topic for c in summary.channels.values()}, record, {}
+    except OSError:
+        raise
+    except Exception as e:  # mcap's own errors on a damaged file
+        raise SourceError(f"corrupt or truncated MCAP ({type(e).__name__}: {e})") from None
+
+
 def _read_mcap(path: Path) -> Container:
     data = path.read_bytes()
     schemas: dict[int, Schema] = {}
@@ -223,14 +252,19 @@ def checked_fields(fields: Mapping[Any, object], where: str) -> dict[str, str]:
     return out
 
 
-def session_metadata(container: Container, sidecar: Mapping[str, str], options: Mapping[str, str]) -> dict[str, str]:
-    """Each field from the first source that gives it (record, custom_data, sidecar, command line). A
-    recording without the project's record is of the contract's schema version unless a source says
-    otherwise."""
+def session_metadata(
+    record: Mapping[str, str] | None,
+    custom_data: Mapping[str, str],
+    sidecar: Mapping[str, str],
+    options: Mapping[str, str],
+) -> dict[str, str]:
+    """Each field from the first source that gives it (the file's record, rosbag2 custom_data, sidecar,
+    command line). A recording without the project's record is of the contract's schema version unless a
+    source says otherwise."""
     merged: dict[str, str] = {}
-    for source in (options, sidecar, container.custom_data, container.record or {}):
+    for source in (options, sidecar, custom_data, record or {}):
         merged.update({k: v for k, v in source.items() if v != ""})
-    if container.record is None:
+    if record is None:
         merged.setdefault("schema_version", SCHEMA_VERSION)
     return merged
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from schemas.messages import TOPICS_BY_KIND
 from touch2robot.ingest.reader import DecodedRecording
 from touch2robot.recording.cdr import Batch
 
@@ -39,7 +38,7 @@ def _pose_columns(pose: np.ndarray) -> dict[str, np.ndarray]:
 def stream_tables(rec: DecodedRecording) -> dict[str, pa.Table]:
     """One table per contract topic of the recording, keyed by lake table name."""
     out: dict[str, pa.Table] = {}
-    for topic in TOPICS_BY_KIND[rec.kind]:
+    for topic in rec.rig.topics(rec.kind):
         batch = rec.topics[topic.name]
         cols = _base(rec, batch)
         f = batch.fields

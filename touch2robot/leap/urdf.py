@@ -2,7 +2,8 @@
 (dex-retargeting and the like). Root link ``base`` in dex-urdf's wrist convention, links named
 like the MJCF bodies, joints named like the MJCF joints (if_mcp ... th_ipl), fixed fingertip links
 ``th_tip``/``if_tip``/``mf_tip``/``rf_tip`` at the fingertip site points (dex-urdf's ``*_tip_head``).
-Inertials only: no meshes, so the file stands alone."""
+Inertials, and visuals from the collision geometry (capsules drawn as cylinders, palm and tactile pads as
+boxes) for viewers such as Foxglove's 3D panel: no meshes, so the file stands alone."""
 
 from __future__ import annotations
 
@@ -29,6 +30,29 @@ def quat_to_rpy(quat: tuple[float, ...] | np.ndarray) -> np.ndarray:
     return np.array([roll, pitch, yaw])
 
 
+def _z_to(direction: np.ndarray) -> np.ndarray:
+    """The (w, x, y, z) quaternion turning +z onto ``direction`` (a URDF cylinder's axis is its z)."""
+    d = direction / np.linalg.norm(direction)
+    axis, cos = np.cross([0.0, 0.0, 1.0], d), float(d[2])
+    if np.linalg.norm(axis) < 1e-9:
+        return np.array([1.0, 0.0, 0.0, 0.0]) if cos > 0 else np.array([0.0, 1.0, 0.0, 0.0])
+    half = math.acos(max(-1.0, min(1.0, cos))) / 2
+    return np.r_[math.cos(half), math.sin(half) * axis / np.linalg.norm(axis)]
+
+
+def _visuals(link: ET.Element, name: str) -> None:
+    boxes = [b for b in hd.PALM_BOXES if b.body == name] + [r.box for r in hd.REGIONS if r.box.body == name]
+    for box in boxes:
+        visual = sub(link, "visual", name=box.name)
+        sub(visual, "origin", xyz=box.pos, rpy=quat_to_rpy(box.quat))
+        sub(sub(visual, "geometry"), "box", size=2 * np.asarray(box.half))
+    for cap in (c for c in hd.CAPSULES if c.body == name):
+        a, b = hd.palm_point_to_body(name, cap.start), hd.palm_point_to_body(name, cap.end)
+        visual = sub(link, "visual", name=f"{name}_link")
+        sub(visual, "origin", xyz=(a + b) / 2, rpy=quat_to_rpy(_z_to(b - a)))
+        sub(sub(visual, "geometry"), "cylinder", radius=cap.radius, length=float(np.linalg.norm(b - a)))
+
+
 def _fixed(robot: ET.Element, name: str, parent: str, child: str, xyz: object, rpy: object) -> None:
     joint = sub(robot, "joint", name=name, type="fixed")
     sub(joint, "origin", xyz=xyz, rpy=rpy)
@@ -36,10 +60,13 @@ def _fixed(robot: ET.Element, name: str, parent: str, child: str, xyz: object, r
     sub(joint, "child", link=child)
 
 
+URDF_ROOT = "base"  # the root link: the wrist frame (schemas.glove.WRIST_FRAME)
+
+
 def hand_urdf() -> str:
     """The URDF document of the right LEAP Hand."""
     robot = ET.Element("robot", name="leap_hand_right")
-    sub(robot, "link", name="base")
+    sub(robot, "link", name=URDF_ROOT)
     for lk in hd.LINKS:
         link = sub(robot, "link", name=lk.name)
         inertial = sub(link, "inertial")
@@ -47,8 +74,9 @@ def hand_urdf() -> str:
         sub(inertial, "mass", value=lk.mass)
         ixx, iyy, izz = lk.diaginertia
         sub(inertial, "inertia", ixx=ixx, iyy=iyy, izz=izz, ixy="0", ixz="0", iyz="0")
+        _visuals(link, lk.name)
         if lk.name == "palm":
-            _fixed(robot, "base_to_palm", "base", "palm", hd.PALM_IN_WRIST_POS, quat_to_rpy(hd.PALM_IN_WRIST_QUAT))
+            _fixed(robot, "base_to_palm", URDF_ROOT, "palm", hd.PALM_IN_WRIST_POS, quat_to_rpy(hd.PALM_IN_WRIST_QUAT))
             continue
         assert lk.joint is not None  # every link but the palm is jointed
         joint = sub(robot, "joint", name=lk.joint.name, type="revolute")
@@ -71,4 +99,4 @@ def hand_urdf() -> str:
     return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"
 
 
-__all__ = ["hand_urdf", "quat_to_rpy"]
+__all__ = ["URDF_ROOT", "hand_urdf", "quat_to_rpy"]

@@ -107,6 +107,23 @@ def encode_pose_stamped(stamp_ns: int, frame_id: str, pos: np.ndarray, quat_wxyz
     return bytes(w.buf)
 
 
+def encode_tf(stamp_ns: int, parent: str, child: str, pos: np.ndarray, quat_wxyz: np.ndarray) -> bytes:
+    """A tf2_msgs/TFMessage of one transform, ``child`` in ``parent``."""
+    w = _Writer()
+    w.u32(1)
+    w.header(stamp_ns, parent)
+    w.string(child)
+    _pose(w, pos, quat_wxyz)  # Transform (Vector3, Quaternion) has Pose's layout
+    return bytes(w.buf)
+
+
+def encode_string(text: str) -> bytes:
+    """A std_msgs/String."""
+    w = _Writer()
+    w.string(text)
+    return bytes(w.buf)
+
+
 def encode_pose_array(stamp_ns: int, frame_id: str, positions: np.ndarray) -> bytes:
     """Keypoints as a PoseArray: positions (K, 3), identity orientations."""
     w = _Writer()

@@ -43,8 +43,10 @@ from schemas.messages import (
     MSG_DEFINITIONS,
     SCHEMA_ENCODING,
     SCHEMA_VERSION,
-    TOPICS_BY_KIND,
+    STREAMS_BY_KIND,
+    VIEWER_TOPICS,
 )
+from schemas.rig import DEFAULT_RIG, Rig
 
 MAGIC = b"\x89MCAP0\r\n"
 # a message record: opcode u8, length u64, then channel id u16, sequence u32, log time u64, publish time u64
@@ -98,15 +100,25 @@ class RecordingWriter:
 
     ``write(topic, stamp_ns, data)`` takes CDR bytes (see ``touch2robot.recording.cdr``), ``write_batch``
     many messages at once; the message's log time is its header stamp. On an exception the partial file is
-    removed and nothing appears at ``path``.
+    removed and nothing appears at ``path``. The channels are the ``rig``'s topics of ``kind``, and with
+    ``viewer`` also ``/tf`` and ``/robot_description`` (for Foxglove's 3D panel).
     """
 
-    def __init__(self, path: Path, kind: str, metadata: dict[str, str], chunk_size: int = 1 << 20) -> None:
-        if kind not in TOPICS_BY_KIND:
+    def __init__(
+        self,
+        path: Path,
+        kind: str,
+        metadata: dict[str, str],
+        chunk_size: int = 1 << 20,
+        rig: Rig = DEFAULT_RIG,
+        viewer: bool = False,
+    ) -> None:
+        if kind not in STREAMS_BY_KIND:
             raise ValueError(f"unknown recording kind {kind!r}")
         self.path = Path(path)
         self.kind = kind
-        self.metadata = {"kind": kind, "schema_version": SCHEMA_VERSION, **metadata}
+        self._topics = rig.topics(kind) + (VIEWER_TOPICS if viewer else ())
+        self.metadata = {"kind": kind, "schema_version": SCHEMA_VERSION, **metadata, "rig": rig.name}
         self._tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
         self._chunk_size = chunk_size
         self._channels: dict[str, int] = {}
@@ -130,7 +142,7 @@ class RecordingWriter:
         builder = RecordBuilder()
         Header(profile="ros2", library="touch2robot").write(builder)
         schema_ids: dict[str, int] = {}
-        for topic in TOPICS_BY_KIND[self.kind]:
+        for topic in self._topics:
             if topic.msg_type not in schema_ids:
                 schema_ids[topic.msg_type] = len(self._schemas) + 1
                 self._schemas.append(

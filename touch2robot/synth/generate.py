@@ -13,16 +13,19 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from schemas.glove import GLOVE_JOINT_NAMES, region_taxels
+from schemas.glove import region_taxels
+from schemas.messages import ROBOT_DESCRIPTION_TOPIC, TF_TOPIC
+from schemas.rig import DEFAULT_RIG, Rig
 from schemas.tables import HUMAN_REGIONS
 from schemas.vocabulary import RecordingKind
 from touch2robot import geometry, scenes
+from touch2robot.leap.urdf import URDF_ROOT, hand_urdf
 from touch2robot.recording import cdr, clock
 from touch2robot.recording.writer import RecordingWriter
 from touch2robot.synth.config import SynthConfig
 from touch2robot.synth.hand import HumanHand
 from touch2robot.synth.motion import Scene, Trajectory, taxel_forces_along
-from touch2robot.synth.sensors import glove_readings
+from touch2robot.synth.sensors import glove_readings, taxel_pooling
 
 CONTACT_N = 0.5
 _REGION_IDX = {r: region_taxels(r) for r in HUMAN_REGIONS}
@@ -97,40 +100,43 @@ def _write_groundtruth(
     os.replace(tmp, path)
 
 
-def write_recording(config: SynthConfig, job: RecordingJob, recordings: Path, groundtruth: Path) -> Path:
-    """Write one glove session (and its ground truth); returns the MCAP path."""
+def write_recording(
+    config: SynthConfig, job: RecordingJob, recordings: Path, groundtruth: Path, rig: Rig = DEFAULT_RIG
+) -> Path:
+    """Write one glove session as ``rig`` records it (its topics, rates and taxel layout), and its ground
+    truth; returns the MCAP path."""
     path = recordings / job.file_name
-    _write_glove(config, job, path, groundtruth / f"{job.stem}.parquet")
+    _write_glove(config, job, path, groundtruth / f"{job.stem}.parquet", rig)
     return path
 
 
-def _write_glove(config: SynthConfig, job: RecordingJob, path: Path, gt_path: Path) -> None:
+def _write_glove(config: SynthConfig, job: RecordingJob, path: Path, gt_path: Path, rig: Rig) -> None:
     hand, traj, scene = _demonstration(config, job)
     rng = _rng(config, job, 1)
     duration = float(traj.t[-1])
     t0_ns = clock.EPOCH_NS + _start_offset_s(job) * 10**9
-    t_tax = clock.stamps(duration, 100.0, rng)
+    rate = {name: rig.streams[name].rate_hz for name in ("taxels", "hand_joints", "object_pose")}
+    t_tax = clock.stamps(duration, rate["taxels"], rng)
     force = taxel_forces_along(hand, scene, traj.sample(t_tax))
-    raw = glove_readings(force, t_tax, rng)
-    t_hand = clock.stamps(duration, 60.0, rng)
+    raw = glove_readings(force @ taxel_pooling(rig.glove).T, t_tax, rng)
+    t_hand = clock.stamps(duration, rate["hand_joints"], rng)
     hand_traj = traj.sample(t_hand)
     joints = hand_traj.joints + rng.normal(0.0, 0.01, hand_traj.joints.shape)
     wrist_pos = hand_traj.wrist_pos + rng.normal(0.0, 0.001, hand_traj.wrist_pos.shape)
     keypoints = geometry.transform_points(hand.forward(joints).keypoints, wrist_pos, hand_traj.wrist_quat)
-    t_obj = clock.stamps(duration, 100.0, rng)
+    t_obj = clock.stamps(duration, rate["object_pose"], rng)
     obj = traj.sample(t_obj)
     obj_pos = obj.object_pos + rng.normal(0.0, 0.0005, obj.object_pos.shape)
 
     def ns(t: float) -> int:
         return t0_ns + round(t * 1e9)
 
-    metadata = {
-        "task": job.task,
-        "subject": f"s{job.subject:02d}",
-        "demo": str(job.demo),
-        "rig": "simulated-demonstrator",
-    }
-    with RecordingWriter(path, RecordingKind.GLOVE_SESSION, metadata) as w:
+    metadata = {"task": job.task, "subject": f"s{job.subject:02d}", "demo": str(job.demo)}
+    topic = rig.topic
+    with RecordingWriter(path, RecordingKind.GLOVE_SESSION, metadata, rig=rig, viewer=True) as w:
+        # the robot's description once, at the start, as robot_state_publisher latches it
+        first = ns(min(t_tax[0], t_hand[0], t_obj[0]))
+        w.write(ROBOT_DESCRIPTION_TOPIC.name, first, cdr.encode_string(hand_urdf()))
         # interleave streams in time order, as a live recorder would
         events = sorted(
             [(t, 0, i) for i, t in enumerate(t_tax)]
@@ -140,22 +146,28 @@ def _write_glove(config: SynthConfig, job: RecordingJob, path: Path, gt_path: Pa
         for t, stream, i in events:
             stamp = ns(t)
             if stream == 0:
-                w.write("/glove/taxels", stamp, cdr.encode_tactile(stamp, "glove_right", raw[i]))
+                w.write(topic("taxels"), stamp, cdr.encode_tactile(stamp, "glove_right", raw[i]))
             elif stream == 1:
                 w.write(
-                    "/glove/hand_joints",
+                    topic("hand_joints"),
                     stamp,
-                    cdr.encode_joint_state(stamp, "glove_right", GLOVE_JOINT_NAMES, joints[i]),
+                    cdr.encode_joint_state(stamp, "glove_right", rig.glove.joint_names, joints[i]),
                 )
-                w.write("/glove/keypoints", stamp, cdr.encode_pose_array(stamp, "world", keypoints[i]))
+                w.write(topic("hand_keypoints"), stamp, cdr.encode_pose_array(stamp, "world", keypoints[i]))
                 w.write(
-                    "/glove/wrist_pose",
+                    topic("wrist_pose"),
                     stamp,
                     cdr.encode_pose_stamped(stamp, "world", wrist_pos[i], hand_traj.wrist_quat[i]),
                 )
+                # the wrist as a transform: Foxglove's 3D panel places the robot description's root on it
+                w.write(
+                    TF_TOPIC.name,
+                    stamp,
+                    cdr.encode_tf(stamp, "world", URDF_ROOT, wrist_pos[i], hand_traj.wrist_quat[i]),
+                )
             else:
                 w.write(
-                    "/object/pose",
+                    topic("object_pose"),
                     stamp,
                     cdr.encode_pose_stamped(stamp, scenes.get(job.task).object.name, obj_pos[i], obj.object_quat[i]),
                 )

@@ -29,7 +29,7 @@ import numpy as np
 import pyarrow as pa
 from mujoco import rollout as mj_rollout
 
-from schemas.messages import LEAP_JOINT_NAMES, REPLAY_TOPICS
+from schemas.rig import DEFAULT_RIG
 from schemas.vocabulary import RecordingKind
 from touch2robot import scenes
 from touch2robot.recording import clock
@@ -49,13 +49,10 @@ TAIL_S = 0.05  # the last piece
 COMMAND_JITTER_S = 0.001  # the command loop's scheduling jitter
 COMMAND_START_S = (0.02, 0.05)  # the first command leaves this long after the recording starts
 CALIBRATION_GAP_S = (2.0, 30.0)  # the calibration ends this long before the replay starts
-RATE_HZ = {topic.name: topic.rate_hz for topic in REPLAY_TOPICS}
+RIG = DEFAULT_RIG  # the twin is the simulated rig's robot: it records as that rig file says
+RATE_HZ = {topic.name: topic.rate_hz for topic in RIG.topics(RecordingKind.ROBOT_REPLAY)}
 TWINTAC, FSR, JOINT_STATES, JOINT_TARGETS, REFERENCE_TIME = (
-    "/twintac/raw",
-    "/fsr/palm",
-    "/leap/joint_states",
-    "/leap/joint_targets",
-    "/replay/reference_time",
+    RIG.topic(stream) for stream in ("twintac", "fsr", "robot_joint_states", "robot_joint_targets", "time_map")
 )
 # the command and the reference time it executes are published together, one stream here
 _STREAMS = (TWINTAC, FSR, JOINT_STATES, JOINT_TARGETS)
@@ -464,8 +461,8 @@ def _write_replay(
             q = state[:, 1 + scene.hand_qpos]
             qdot = state[:, 1 + nq + scene.hand_dof]
             effort = _effort(model, physics.control[j, : model.nu], q, qdot)
-            return streams.encode_joint_state(s, "leap", LEAP_JOINT_NAMES, q + encoder_noise[lo:hi], qdot, effort)
-        return streams.encode_joint_state(s, "leap", LEAP_JOINT_NAMES, cmd.joint_target[sent[lo:hi]])
+            return streams.encode_joint_state(s, "leap", RIG.robot.joint_names, q + encoder_noise[lo:hi], qdot, effort)
+        return streams.encode_joint_state(s, "leap", RIG.robot.joint_names, cmd.joint_target[sent[lo:hi]])
 
     targets = _STREAMS.index(JOINT_TARGETS)
     reference = len(_STREAMS)  # the reference time, published right after each command

@@ -14,9 +14,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from schemas.messages import N_FSR_CHANNELS, N_TWINTAC_CHANNELS
+from schemas.rig import DEFAULT_RIG
 from touch2robot.twin.config import ADC_MAX, TwinConfig
 
+# the simulated rig's sensors: 4 TwinTac fingertips (T1..T4, channels in tip order) and 4 palm FSRs
+N_TWINTAC_CHANNELS = len(DEFAULT_RIG.robot.twintac.regions)
+N_FSR_CHANNELS = len(DEFAULT_RIG.robot.fsr.regions)
 CHANNELS_PER_TIP = N_TWINTAC_CHANNELS // 4
 SPREAD_CONCENTRATION = 3.0  # Dirichlet concentration of a contact's share over a tip's channels
 
