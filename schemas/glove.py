@@ -1,5 +1,6 @@
-"""The tactile glove's layout: which taxel belongs to which human region, and the
-joint angles its SDK reports. A different glove supplies its own version of this file."""
+"""The simulated demonstrator's glove: which of its 256 taxels belongs to which human region, and the
+joint angles its SDK reports. This is the simulated rig's glove (``schemas.rig.DEFAULT_RIG``); a lab's
+glove is described by its own rig file, not by this module."""
 
 from __future__ import annotations
 

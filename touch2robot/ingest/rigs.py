@@ -122,11 +122,6 @@ def rigs_from(definitions: Mapping[str, Mapping]) -> dict[str, Rig]:
     return {name: Rig.model_validate(d) for name, d in definitions.items()}
 
 
-def rig_of(metadata: Mapping[str, str], rigs: Mapping[str, Rig]) -> Rig | None:
-    """The rig a recording's session names (the default rig when it names none); None for an unknown name."""
-    return rigs.get(metadata.get("rig") or DEFAULT_RIG.name)
-
-
 def check_topics(recordings: Iterable[Path], rigs: Rigs, session: Mapping[str, str]) -> None:
     """Refuse (RigError) a rig whose stream topic is in none of the recordings of a kind that name it. A
     recording whose container cannot be read is left to ingest to quarantine."""
