@@ -210,3 +210,22 @@ def test_real_contacts_follow_the_rigs_channels() -> None:
     tips, palm = real_contacts(twintac, np.ones(8), fsr, ContactsConfig(), robot)
     assert tips.tolist() == [[False] * 4, [False, False, True, False], [False] * 4]
     assert palm.tolist() == [[False] * 4, [False] * 4, [False, True, False, False]]
+
+
+def test_a_recording_lacking_a_topic_of_the_built_in_rig_is_quarantined_not_the_whole_ingest(
+    smoke_data: Path, tmp_path: Path
+) -> None:
+    """The built-in rig is the contract: the one recording lacking its topic is at fault, and only it."""
+    from touch2robot.recording import cdr
+    from touch2robot.recording.writer import RecordingWriter
+
+    folder = tmp_path / "recordings"
+    folder.mkdir()
+    shutil.copy(sorted((smoke_data / "recordings").glob("*.mcap"))[0], folder)
+    lacking = folder / "pick_s09_d01_glove.mcap"
+    with RecordingWriter(lacking, "glove_session", {"task": "pick", "subject": "s09"}) as w:
+        w.write("/glove/taxels", 10**9, cdr.encode_tactile(10**9, "glove_right", np.zeros(256)))
+    rigs = checked_rigs(folder, [], {})  # no RigError
+    results = {p.name: ingest_file(p, tmp_path / "lake", rigs=rigs.by_name) for p in sorted(folder.glob("*.mcap"))}
+    assert results.pop(lacking.name).status == "quarantined"
+    assert [r.status for r in results.values()] == ["ingested"]

@@ -123,8 +123,9 @@ def rigs_from(definitions: Mapping[str, Mapping]) -> dict[str, Rig]:
 
 
 def check_topics(recordings: Iterable[Path], rigs: Rigs, session: Mapping[str, str]) -> None:
-    """Refuse (RigError) a rig whose stream topic is in none of the recordings of a kind that name it. A
-    recording whose container cannot be read is left to ingest to quarantine."""
+    """Refuse (RigError) a rig file whose stream topic is in none of the recordings of a kind that name it.
+    The built-in rig is the contract itself: a recording lacking one of its topics is that recording's fault
+    and is quarantined by ingest, as is a recording whose container cannot be read."""
     seen: dict[tuple[str, str], list[tuple[Path, set[str]]]] = {}
     for path in recordings:
         try:
@@ -133,18 +134,18 @@ def check_topics(recordings: Iterable[Path], rigs: Rigs, session: Mapping[str, s
         except (OSError, SourceError):
             continue
         name, kind = metadata.get("rig") or DEFAULT_RIG.name, metadata.get("kind", "")
-        if name in rigs.by_name and kind in STREAMS_BY_KIND:
+        if rigs.files.get(name) is not None and kind in STREAMS_BY_KIND:
             seen.setdefault((name, kind), []).append((path, topics))
     for (name, kind), found in sorted(seen.items()):
         rig = rigs.by_name[name]
         for stream in STREAMS_BY_KIND[kind]:
             topic = rig.topic(stream)
             if not any(topic in topics for _, topics in found):
-                where = rigs.files[name] or f"the built-in rig {name!r}"
                 path, topics = found[0]
                 raise RigError(
-                    f"rig file {where}: streams.{stream}.topic: {topic} is in none of the {len(found)} {kind} "
-                    f"recording(s) that name rig {name!r} ({path.name} has {', '.join(sorted(topics)) or 'no topics'})"
+                    f"rig file {rigs.files[name]}: streams.{stream}.topic: {topic} is in none of the {len(found)} "
+                    f"{kind} recording(s) that name rig {name!r} ({path.name} has "
+                    f"{', '.join(sorted(topics)) or 'no topics'})"
                 )
 
 
