@@ -733,6 +733,104 @@ def deploy(
     console.print(f"start a worker: uv run prefect worker start --pool {pool}")
 
 
+@app.command()
+def view(
+    recording: Annotated[
+        str | None, typer.Argument(help="glove session: recording id or file name (default: list them)")
+    ] = None,
+    data: DataOpt = None,
+    trajectory: Annotated[
+        str | None, typer.Option(help="robot trajectory to show first: a rollout id or a twin replay's recording id")
+    ] = None,
+    host: Annotated[str, typer.Option(help="address to serve on")] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="port to serve on")] = 8080,
+    live: Annotated[
+        Path | None, typer.Option(help="follow this glove session MCAP while it is written (live feedback)")
+    ] = None,
+    realtime: Annotated[
+        bool, typer.Option("--realtime", help="live: re-record RECORDING at real-time speed and follow it")
+    ] = False,
+    time_budget: Annotated[float, typer.Option(help="user study: seconds per condition")] = 60.0,
+    ratings: Annotated[
+        Path | None, typer.Option(help="user study: the ratings CSV (default recordings/user_study/ratings_study.csv)")
+    ] = None,
+    export: Annotated[
+        Path | None, typer.Option(help="write the demonstration and the trajectory as a Rerun .rrd file and exit")
+    ] = None,
+) -> None:
+    """The contact feedback view in a browser: the human's keypoints and glove contacts beside the LEAP Hand
+    posed by a robot trajectory with its tactile regions, a timeline, per-region contact timelines, the
+    Visual Feedback / Touch2Robot condition switch and the user-study questionnaire (saved where `evaluate`
+    reads ratings). `--live FILE` follows a recording being written; `--realtime` re-records RECORDING
+    at real-time speed and follows it, printing the latency from each message's stamp to the page."""
+    import threading
+
+    layout = _layout(data)
+    from app.view import FeedbackView, PortInUse
+    from touch2robot.view.demonstration import ViewError, glove_sessions, load_demonstration, load_trajectory
+    from touch2robot.view.follow import LiveSession, live_retargeter, replay_in_real_time
+
+    try:
+        if recording is None:
+            sessions = glove_sessions(layout)
+            for rid, file_name, task in sessions:
+                console.print(f"{rid}  {file_name}  ({task})")
+            console.print(f"{len(sessions)} glove session(s): `touch2robot view ID` opens one")
+            return
+        demo = load_demonstration(layout, recording)
+        if export is not None:
+            from touch2robot.view.export import write_rrd
+
+            choice = next((c for c in demo.trajectories if c.key == trajectory), None) if trajectory else None
+            choice = choice or next(iter(demo.trajectories), None)
+            robot = load_trajectory(layout, choice) if choice is not None else None
+            console.print(f"wrote {write_rrd(demo, robot, export)}")
+            return
+    except ViewError as e:
+        console.print(f"[red]{e}[/red]")
+        raise typer.Exit(2) from None
+    stop = threading.Event()
+    follow = live
+    if realtime:
+        import tempfile
+
+        source = layout.recordings / demo.file_name
+        follow = Path(tempfile.mkdtemp(prefix="touch2robot-live-")) / f"live_{demo.file_name}"
+        threading.Thread(target=replay_in_real_time, args=(source, follow, stop), daemon=True).start()
+        while not follow.exists():
+            time.sleep(0.01)
+    if follow is not None and not follow.is_file():
+        console.print(f"[red]--live {follow}: no such file[/red]")
+        raise typer.Exit(2)
+    session = LiveSession(follow, retarget=live_retargeter()) if follow is not None else None
+    try:
+        viewer = FeedbackView(layout, demo, host, port, trajectory, session, time_budget, ratings)
+    except (PortInUse, ViewError) as e:
+        console.print(f"[red]{e}[/red]")
+        raise typer.Exit(2) from None
+    console.print(f"view of {demo.file_name} on http://{host}:{port} (Ctrl-C stops it)")
+    if session is not None:
+
+        def report() -> None:
+            while not stop.wait(5.0):
+                if viewer.latency_ms:
+                    lat = np.asarray(viewer.latency_ms)
+                    console.print(
+                        f"live: {len(lat)} updates, latency message stamp -> page p50 {np.median(lat):.1f} ms, "
+                        f"p95 {np.percentile(lat, 95):.1f} ms"
+                    )
+
+        import numpy as np
+
+        threading.Thread(target=report, daemon=True).start()
+    try:
+        viewer.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        stop.set()
+
+
 sim_app = typer.Typer(help="The MuJoCo scenes of the four tasks.", no_args_is_help=True)
 app.add_typer(sim_app, name="sim")
 

@@ -40,6 +40,7 @@ from touch2robot.evaluate import (
     evaluated_sources,
     pool_seeds,
     ratings_files,
+    reported_studies,
     source_folders,
 )
 from touch2robot.metrics import ALL
@@ -80,7 +81,10 @@ def evaluate(
     per_source.append(fidelity.result())
     paths = [str(p) for p in ratings_files(Path(ratings) if ratings else layout.user_study)]
     shas = [file_digest(p) for p in paths]
-    studies = [f.result() for f in stored(evaluate_ratings, layout.results).map(paths, shas)]
+    evaluated = [f.result() for f in stored(evaluate_ratings, layout.results).map(paths, shas)]
+    studies = reported_studies(evaluated)
+    sha_of = dict(zip(paths, shas, strict=True))
+    paths, shas = [s["path"] for s in studies], [sha_of[s["path"]] for s in studies]
 
     metrics = [r for s in per_source for r in s["contact_metrics"]]
     onsets = [r for s in per_source for r in s["onset_errors"]]
@@ -127,6 +131,8 @@ def evaluate(
         # every method's F1 over all tasks with its interval and paired comparison (the comparison table's rows)
         "f1_compared": [r for r in comparison if r["task"] == ALL and r["metric"] == "f1"],
         "ratings": [Path(p).name for p in paths],
+        # SYNTHETIC example ratings left out because real ratings exist
+        "ratings_left_out": [Path(s["path"]).name for s in evaluated if s not in studies],
         "ratings_skipped": skipped,
         "runs": runs,
     }

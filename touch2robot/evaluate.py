@@ -69,6 +69,7 @@ __all__ = [
     "read_time_map",
     "replace_table",
     "replay_demonstrations",
+    "reported_studies",
     "source_folders",
     "user_study_table",
 ]
@@ -461,6 +462,15 @@ def ratings_files(location: Path) -> list[Path]:
     if not location.is_dir():
         return []
     return sorted(p for p in location.glob("*.csv") if not p.name.startswith("."))
+
+
+def reported_studies(studies: list[dict]) -> list[dict]:
+    """The ratings files whose statistics are reported (each a dict with ``synthetic`` and ``rows``): SYNTHETIC
+    ones only while no real ratings file has statistics, so a study's own ratings replace the demonstrator's
+    example instead of standing beside it."""
+    if any(s["rows"] and not s["synthetic"] for s in studies):
+        return [s for s in studies if not s["synthetic"]]
+    return studies
 
 
 def is_synthetic(ratings: pd.DataFrame, name: str) -> bool:
