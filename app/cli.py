@@ -810,6 +810,7 @@ def view(
         raise typer.Exit(2) from None
     console.print(f"view of {demo.file_name} on http://{host}:{port} (Ctrl-C stops it)")
     if session is not None:
+        import numpy as np
 
         def report() -> None:
             while not stop.wait(5.0):
@@ -819,8 +820,6 @@ def view(
                         f"live: {len(lat)} updates, latency message stamp -> page p50 {np.median(lat):.1f} ms, "
                         f"p95 {np.percentile(lat, 95):.1f} ms"
                     )
-
-        import numpy as np
 
         threading.Thread(target=report, daemon=True).start()
     try:

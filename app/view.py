@@ -14,7 +14,6 @@ The page's contact state is also in the DOM: every region cell of the contact pa
 
 from __future__ import annotations
 
-import dataclasses
 import errno
 import socket
 import threading
@@ -24,29 +23,26 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import trimesh
 
 from schemas.tables import HUMAN_REGIONS, ROBOT_REGIONS
+from touch2robot.geometry import quat_to_mat
 from touch2robot.settings import DataLayout
-from touch2robot.stats import CONDITIONS, QUESTIONS, RATING_MAX, RATING_MIN
+from touch2robot.stats import CONDITIONS, RATING_MAX, RATING_MIN
 from touch2robot.view import study
 from touch2robot.view.demonstration import Demonstration, RobotTrajectory, ViewError, load_trajectory
 from touch2robot.view.follow import FollowError, LiveSession
 from touch2robot.view.pose import (
-    SKELETON_EDGES,
+    CONTACT_RGB,
+    IDLE_REGION_RGB,
     ScenePoser,
-    _group,
-    body_rotations,
     glove_region_points,
+    human_groups,
+    posed_bones,
     posed_vertices,
     scene_groups,
 )
 
 VISUAL_FEEDBACK, TOUCH2ROBOT = CONDITIONS
-# Contact magenta: no task object, pad or table shares it, so a pixel test can find it in the canvas.
-CONTACT_RGB = (255, 26, 168)
-IDLE_REGION_RGB = (150, 150, 160)
-HUMAN_RGB = (230, 190, 150)
 HUMAN_OFFSET = np.array([0.0, 0.32, 0.0])  # the human side, beside the robot scene (m)
 FRAME_RATE_HZ = 30.0
 SPEEDS = ("0.25", "0.5", "1", "2")
@@ -97,21 +93,6 @@ def contact_panel_html(
     )
 
 
-def bone_transforms(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Centre, wxyz (taking +z onto the bone) and length of each skeleton bone."""
-    a = points[[e[0] for e in SKELETON_EDGES]]
-    b = points[[e[1] for e in SKELETON_EDGES]]
-    d = b - a
-    length = np.linalg.norm(d, axis=1)
-    u = d / np.maximum(length, 1e-9)[:, None]
-    # the rotation taking +z onto u: half-way quaternion (w = 1 + u_z, xyz = z x u), normalised
-    q = np.stack([1.0 + u[:, 2], -u[:, 1], u[:, 0], np.zeros(len(u))], axis=1)
-    flipped = q[:, 0] < 1e-9  # u = -z: any half turn about x
-    q[flipped] = [0.0, 1.0, 0.0, 0.0]
-    q /= np.linalg.norm(q, axis=1, keepdims=True)
-    return (a + b) / 2, q, np.maximum(length, 1e-3)
-
-
 def _segments(t: np.ndarray, on: np.ndarray) -> list[tuple[float, float]]:
     """(start, end) of each run of True in ``on`` sampled at ``t``."""
     if not len(t):
@@ -121,12 +102,18 @@ def _segments(t: np.ndarray, on: np.ndarray) -> list[tuple[float, float]]:
     return [(float(t[a]), float(ends[b])) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
-def timeline_svg(demo: Demonstration, trajectory: RobotTrajectory | None, t: float, width: int = 260) -> str:
-    """Per-region contact timelines: for each robot region the human's (top) and the robot's (bottom)
-    contact intervals over the demonstration, and a cursor at ``t``."""
-    duration = max(demo.duration, 1e-6)
-    t0 = float(demo.t[0])
-    x = lambda s: 30 + (width - 34) * (s - t0) / duration  # noqa: E731
+TIMELINE_WIDTH = 260
+
+
+def _timeline_x(demo: Demonstration, s: float) -> float:
+    return 30 + (TIMELINE_WIDTH - 34) * (s - float(demo.t[0])) / max(demo.duration, 1e-6)
+
+
+def timeline_rows(demo: Demonstration, trajectory: RobotTrajectory | None) -> str:
+    """The per-region contact timelines' SVG rows: for each robot region the human's (top) and the robot's
+    (bottom) contact intervals over the demonstration (they change with the trajectory, not the time)."""
+    width = TIMELINE_WIDTH
+    x = lambda s: _timeline_x(demo, s)  # noqa: E731
     rows = []
     for k, region in enumerate(ROBOT_REGIONS):
         y = 4 + 18 * k
@@ -141,10 +128,16 @@ def timeline_svg(demo: Demonstration, trajectory: RobotTrajectory | None, t: flo
                     f'<rect x="{x(a):.1f}" y="{y + 8}" width="{max(x(b) - x(a), 1):.1f}" height="6" '
                     f'fill="{_rgb_css(CONTACT_RGB)}"/>'
                 )
+    return "".join(rows)
+
+
+def timeline_svg(demo: Demonstration, rows: str, t: float) -> str:
+    """The timelines (``timeline_rows``) with a cursor at ``t``."""
     height = 8 + 18 * len(ROBOT_REGIONS)
-    cursor = f'<line x1="{x(t):.1f}" x2="{x(t):.1f}" y1="0" y2="{height}" stroke="black"/>'
+    x = _timeline_x(demo, t)
+    cursor = f'<line x1="{x:.1f}" x2="{x:.1f}" y1="0" y2="{height}" stroke="black"/>'
     legend = '<div style="font:10px sans-serif">top: human (glove) · bottom: robot</div>'
-    return f'<svg id="timelines" width="{width}" height="{height}">{"".join(rows)}{cursor}</svg>{legend}'
+    return f'<svg id="timelines" width="{TIMELINE_WIDTH}" height="{height}">{rows}{cursor}</svg>{legend}'
 
 
 @dataclass
@@ -181,7 +174,8 @@ class FeedbackView:
         self._trial_started: float | None = None
         self._lock = threading.RLock()
         self._stop = threading.Event()
-        self.message = ""
+        self._timeline_rows = timeline_rows(demo, None)
+        self._glove_at: np.ndarray | None = None  # the glove markers' last positions (live: keypoints come apart)
         self.latency_ms: deque[float] = deque(maxlen=2000)
         self._last_stamp = 0
         check_port(host, port)
@@ -223,14 +217,8 @@ class FeedbackView:
         # (80 pose messages a frame) kept a software-rendered page (headless Chromium) seconds behind a live
         # session, and so did per-node colour changes (measured with tests/test_view.py's live page).
         scene = self.server.scene
-        self.groups = scene_groups(self.poser, CONTACT_RGB)
-        bone = trimesh.creation.cylinder(radius=0.003, height=1.0, sections=8)
-        marker = trimesh.creation.icosphere(subdivisions=2, radius=0.009)
-        bone_part = np.asarray(bone.vertices, np.float64), np.asarray(bone.faces)
-        marker_part = np.asarray(marker.vertices, np.float64), np.asarray(marker.faces)
-        self.bone_group = _group("bones", HUMAN_RGB, [(f"bone{k}", k, *bone_part) for k in range(len(SKELETON_EDGES))])
-        markers = [(r, k, *marker_part) for k, r in enumerate(HUMAN_REGIONS)]
-        self.glove_groups = (_group("glove", IDLE_REGION_RGB, markers), _group("glove_contact", CONTACT_RGB, markers))
+        self.groups = scene_groups(self.poser)
+        self.bone_group, *self.glove_groups = human_groups()
         self.meshes = {}
         for group in (*self.groups, self.bone_group, *self.glove_groups):
             n = sum(len(p) for p in group.parts)
@@ -296,6 +284,7 @@ class FeedbackView:
             return
         with self._lock:
             self.trajectory = trajectory
+            self._timeline_rows = timeline_rows(self.demo, trajectory)
             if self.trajectory_menu.value != label:
                 self.trajectory_menu.value = label
         self.show(self.play.t)
@@ -312,7 +301,6 @@ class FeedbackView:
         self.play_button.label = "Pause" if self.play.playing else "Play"
 
     def _note(self, text: str) -> None:
-        self.message = text
         self.status.content = text
 
     @property
@@ -337,7 +325,7 @@ class FeedbackView:
             label = trajectory.choice.label if trajectory is not None else "none"
             note = "T5: no robot counterpart, not stored in the lake"
             self._draw(xpos, xquat, keypoints, human, robot, label, 0, t, note)
-            self.timelines.content = timeline_svg(demo, trajectory, t)
+            self.timelines.content = timeline_svg(demo, self._timeline_rows, t)
             self.timelines.visible = self.contacts_shown
         if abs(self.time_slider.value - t) > 1e-6:
             self.time_slider.value = round(float(t), 2)
@@ -356,7 +344,7 @@ class FeedbackView:
     ) -> None:
         shown = self.contacts_shown
         with self.server.atomic():
-            rotation = body_rotations(xquat)
+            rotation = quat_to_mat(xquat)
             robot_on = np.zeros(len(ROBOT_REGIONS), bool) if robot is None or not shown else np.asarray(robot, bool)
             for group in self.groups:
                 visible = None
@@ -367,15 +355,10 @@ class FeedbackView:
                 self._send(group.key, posed_vertices(group, xpos, rotation, visible))
             if keypoints is not None:
                 points = keypoints + HUMAN_OFFSET
-                center, wxyz, length = bone_transforms(points)
-                stretched = dataclasses.replace(
-                    self.bone_group,
-                    parts=tuple(p * [1.0, 1.0, L] for p, L in zip(self.bone_group.parts, length, strict=True)),
-                )
-                self._send("bones", posed_vertices(stretched, center, body_rotations(wxyz)))
+                self._send("bones", posed_bones(self.bone_group, points))
                 at = glove_region_points(points)
                 self._glove_at = np.stack([at[r] for r in HUMAN_REGIONS])
-            if getattr(self, "_glove_at", None) is not None:
+            if self._glove_at is not None:
                 human_on = np.asarray(human, bool) & shown
                 eye = np.tile(np.eye(3), (len(HUMAN_REGIONS), 1, 1))
                 idle, touching = self.glove_groups
@@ -523,4 +506,4 @@ class FeedbackView:
         self._stop.set()
 
 
-__all__ = ["QUESTIONS", "FeedbackView", "PortInUse", "check_port", "contact_panel_html", "timeline_svg"]
+__all__ = ["FeedbackView", "PortInUse", "check_port", "contact_panel_html", "timeline_svg"]

@@ -33,7 +33,7 @@ class TrajectoryChoice:
 
 @dataclass(frozen=True)
 class RobotTrajectory:
-    """A robot trajectory resampled onto nothing: its own stamps (``t_ref``) with joints (N, 16), wrist
+    """A robot trajectory on its own stamps on the reference clock (``t_ref``): joints (N, 16), wrist
     (N, 7: px py pz qw qx qy qz), object (N, 7) and drawer opening (N,), and its contacts (M, 8) in
     ``ROBOT_REGIONS`` order at ``contact_t`` (M,)."""
 
@@ -63,7 +63,7 @@ class RobotTrajectory:
 class Demonstration:
     """A glove session: keypoints (T, 21, 3) at ``t`` and the human's contacts (M, 9) in ``HUMAN_REGIONS``
     order at ``contact_t``. The lake keeps the 8 regions that have a robot counterpart: T5 (the little
-    finger) is never in contact there, and ``stored_regions`` says which are."""
+    finger) is never in contact there."""
 
     recording_id: str
     file_name: str
@@ -74,7 +74,6 @@ class Demonstration:
     contact_t: np.ndarray
     contacts: np.ndarray
     trajectories: tuple[TrajectoryChoice, ...]
-    stored_regions: tuple[str, ...] = ROBOT_REGIONS
 
     @property
     def duration(self) -> float:

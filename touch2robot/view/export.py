@@ -5,16 +5,22 @@ on the reference clock ``t_ref``."""
 
 from __future__ import annotations
 
+import uuid
 from pathlib import Path
 
 import numpy as np
 
 from schemas.tables import HUMAN_REGIONS, ROBOT_REGIONS
 from touch2robot.view.demonstration import Demonstration, RobotTrajectory
-from touch2robot.view.pose import REGION_PAD_GEOMS, SKELETON_EDGES, ScenePoser, glove_region_points
+from touch2robot.view.pose import (
+    CONTACT_RGB,
+    IDLE_REGION_RGB,
+    REGION_PAD_GEOMS,
+    SKELETON_EDGES,
+    ScenePoser,
+    glove_region_points,
+)
 
-CONTACT_RGB = (255, 26, 168)
-IDLE_RGB = (150, 150, 160)
 EXPORT_RATE_HZ = 20.0
 TIMELINE = "t_ref"
 
@@ -27,7 +33,7 @@ def write_rrd(
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp")
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:8]}.tmp")  # two exports to one path never share it
     rec = rr.RecordingStream(application_id="touch2robot_view", recording_id=demo.recording_id)
     rec.save(str(tmp))
     poser = ScenePoser(demo.task)
@@ -75,7 +81,7 @@ def write_rrd(
             rr.Points3D(
                 [points[r] for r in HUMAN_REGIONS],
                 radii=0.008,
-                colors=[CONTACT_RGB if human[k] else IDLE_RGB for k in range(len(HUMAN_REGIONS))],
+                colors=[CONTACT_RGB if human[k] else IDLE_REGION_RGB for k in range(len(HUMAN_REGIONS))],
                 labels=list(HUMAN_REGIONS),
             ),
         )

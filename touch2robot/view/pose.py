@@ -3,6 +3,7 @@ wrist pose and object pose, and each visible geom as a mesh in its body's frame 
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from dataclasses import dataclass
 
@@ -10,12 +11,18 @@ import mujoco
 import numpy as np
 import trimesh
 
+from schemas.tables import HUMAN_REGIONS
+from touch2robot.geometry import quat_to_mat
 from touch2robot.leap import description as hd
 from touch2robot.sim.scene import Scene, build_scene
 
 # MJCF group 4 holds sites and helper geoms no viewer should draw (fingertip sites, the wrist target).
 HIDDEN_GROUPS = (3, 4, 5)
 REGION_PAD_GEOMS: dict[str, str] = {r.name: r.box.name for r in hd.REGIONS}
+# Contact magenta: no task object, pad or table shares it, so a pixel test can find it in a rendered frame.
+CONTACT_RGB = (255, 26, 168)
+IDLE_REGION_RGB = (150, 150, 160)
+HUMAN_RGB = (230, 190, 150)
 
 
 @dataclass(frozen=True)
@@ -27,7 +34,6 @@ class GeomMesh:
     vertices: np.ndarray
     faces: np.ndarray
     color: tuple[int, int, int]
-    opacity: float
 
 
 def _mesh(kind: int, size: np.ndarray) -> trimesh.Trimesh | None:
@@ -63,7 +69,7 @@ class ScenePoser:
             if mesh is None:
                 continue
             transform = np.eye(4)
-            transform[:3, :3] = _quat_to_mat(model.geom_quat[g])
+            transform[:3, :3] = quat_to_mat(model.geom_quat[g])
             transform[:3, 3] = model.geom_pos[g]
             mesh.apply_transform(transform)
             rgba = model.geom_rgba[g]
@@ -74,7 +80,6 @@ class ScenePoser:
                     np.asarray(mesh.vertices, np.float32),
                     np.asarray(mesh.faces, np.uint32),
                     (int(255 * rgba[0]), int(255 * rgba[1]), int(255 * rgba[2])),
-                    float(rgba[3]),
                 )
             )
         self.meshes: tuple[GeomMesh, ...] = tuple(meshes)
@@ -101,12 +106,6 @@ class ScenePoser:
             data.qpos[scene.object_qpos : scene.object_qpos + 7] = object_pose
         mujoco.mj_kinematics(scene.model, data)
         return data.xpos.copy(), data.xquat.copy()
-
-
-def _quat_to_mat(q: np.ndarray) -> np.ndarray:
-    out = np.zeros(9)
-    mujoco.mju_quat2Mat(out, np.asarray(q, np.float64))
-    return out.reshape(3, 3)
 
 
 # MediaPipe hand skeleton: each finger's chain from the wrist, and the knuckle line.
@@ -140,19 +139,6 @@ def glove_region_points(keypoints: np.ndarray) -> dict[str, np.ndarray]:
     }
 
 
-def _rotations(quats: np.ndarray) -> np.ndarray:
-    """Rotation matrices (n, 3, 3) of wxyz quaternions (n, 4)."""
-    w, x, y, z = np.asarray(quats, np.float64).T
-    return np.stack(
-        [
-            np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
-            np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
-            np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1),
-        ],
-        -2,
-    )
-
-
 @dataclass(frozen=True)
 class MeshGroup:
     """Several geoms as one triangle mesh of one colour: ``faces`` index ``parts`` concatenated vertices."""
@@ -165,7 +151,9 @@ class MeshGroup:
     names: tuple[str, ...]
 
 
-def _group(key: str, color: tuple[int, int, int], parts: list[tuple[str, int, np.ndarray, np.ndarray]]) -> MeshGroup:
+def mesh_group(
+    key: str, color: tuple[int, int, int], parts: list[tuple[str, int, np.ndarray, np.ndarray]]
+) -> MeshGroup:
     faces, offset = [], 0
     for _, _, vertices, f in parts:
         faces.append(f + offset)
@@ -194,8 +182,8 @@ def posed_vertices(
     return np.concatenate(out).astype(np.float32)
 
 
-def scene_groups(poser: ScenePoser, contact_rgb: tuple[int, int, int]) -> tuple[MeshGroup, ...]:
-    """The scene's geoms merged by colour, the eight tactile pads twice (idle colour and ``contact_rgb``, each
+def scene_groups(poser: ScenePoser) -> tuple[MeshGroup, ...]:
+    """The scene's geoms merged by colour, the eight tactile pads twice (idle colour and ``CONTACT_RGB``, each
     pad shown in one of them), for :func:`posed_vertices` with the body poses of :meth:`ScenePoser.pose`."""
     pads = {geom: region for region, geom in REGION_PAD_GEOMS.items()}
     by_color: dict[tuple[int, int, int], list] = {}
@@ -209,9 +197,41 @@ def scene_groups(poser: ScenePoser, contact_rgb: tuple[int, int, int]) -> tuple[
     order = {r: k for k, r in enumerate(REGION_PAD_GEOMS)}
     pad_parts.sort(key=lambda p: order[p[0]])
     pad_rgb = next(m.color for m in poser.meshes if m.name in pads)
-    groups = [_group(f"geoms_{r}_{g}_{b}", (r, g, b), parts) for (r, g, b), parts in by_color.items()]
-    return (*groups, _group("pads", pad_rgb, pad_parts), _group("pads_contact", contact_rgb, pad_parts))
+    groups = [mesh_group(f"geoms_{r}_{g}_{b}", (r, g, b), parts) for (r, g, b), parts in by_color.items()]
+    return (*groups, mesh_group("pads", pad_rgb, pad_parts), mesh_group("pads_contact", CONTACT_RGB, pad_parts))
 
 
-def body_rotations(xquat: np.ndarray) -> np.ndarray:
-    return _rotations(xquat)
+def bone_transforms(points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Centre, rotation (taking +z onto the bone) and length of each skeleton bone of keypoints (21, 3)."""
+    a = points[[e[0] for e in SKELETON_EDGES]]
+    b = points[[e[1] for e in SKELETON_EDGES]]
+    d = b - a
+    length = np.linalg.norm(d, axis=1)
+    u = d / np.maximum(length, 1e-9)[:, None]
+    # the half-way quaternion (w = 1 + u_z, xyz = z x u) takes +z onto u; u = -z: a half turn about x
+    q = np.stack([1.0 + u[:, 2], -u[:, 1], u[:, 0], np.zeros(len(u))], axis=1)
+    q[q[:, 0] < 1e-9] = [0.0, 1.0, 0.0, 0.0]
+    return (a + b) / 2, quat_to_mat(q), np.maximum(length, 1e-3)
+
+
+def human_groups() -> tuple[MeshGroup, MeshGroup, MeshGroup]:
+    """The skeleton's bones (unit-length cylinders along z, one per edge) and the nine glove markers twice
+    (idle and in contact, each marker shown in one), for :func:`posed_bones` and :func:`posed_vertices`."""
+    bone = trimesh.creation.cylinder(radius=0.003, height=1.0, sections=8)
+    marker = trimesh.creation.icosphere(subdivisions=2, radius=0.009)
+    bone_part = np.asarray(bone.vertices, np.float64), np.asarray(bone.faces)
+    markers = [
+        (r, k, np.asarray(marker.vertices, np.float64), np.asarray(marker.faces)) for k, r in enumerate(HUMAN_REGIONS)
+    ]
+    return (
+        mesh_group("bones", HUMAN_RGB, [(f"bone{k}", k, *bone_part) for k in range(len(SKELETON_EDGES))]),
+        mesh_group("glove", IDLE_REGION_RGB, markers),
+        mesh_group("glove_contact", CONTACT_RGB, markers),
+    )
+
+
+def posed_bones(bones: MeshGroup, points: np.ndarray) -> np.ndarray:
+    """World vertices of the skeleton's bones for keypoints (21, 3): each unit cylinder stretched to its bone."""
+    center, rotation, length = bone_transforms(points)
+    stretched = [p * [1.0, 1.0, n] for p, n in zip(bones.parts, length, strict=True)]
+    return posed_vertices(dataclasses.replace(bones, parts=tuple(stretched)), center, rotation)
