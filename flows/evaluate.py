@@ -10,7 +10,7 @@ from prefect import flow, unmapped
 
 from schemas.tables import SCHEMAS
 from tasks import tracking
-from tasks.common import stored
+from tasks.common import stored, unvisited
 from tasks.evaluate import (
     compare_methods,
     evaluate_ablations,
@@ -90,11 +90,11 @@ def evaluate(
     onsets = [r for s in per_source for r in s["onset_errors"]]
     ablations = stored(evaluate_ablations, layout.results)(lake, folder_digest([STUDENT_VARIANTS.folder(layout.lake)]))
     clusters = [r for s in per_source for r in s["clusters"]] + ablations
-    comparison = stored(compare_methods, layout.results)(clusters, config.comparison, list(sweep))
-    store_table(lake, "contact_metrics", metrics)
-    store_table(lake, "onset_errors", onsets)
-    store_table(lake, "comparison", comparison)
-    store_table(lake, "user_study", [r for s in studies for r in s["rows"]])
+    comparison = stored(compare_methods, layout.results)(unvisited(clusters), config.comparison, list(sweep))
+    store_table(lake, "contact_metrics", unvisited(metrics))
+    store_table(lake, "onset_errors", unvisited(onsets))
+    store_table(lake, "comparison", unvisited(comparison))
+    store_table(lake, "user_study", unvisited([r for s in studies for r in s["rows"]]))
     refresh_catalog(str(layout.root))
 
     uri = tracking.tracking_uri(layout)
@@ -102,15 +102,21 @@ def evaluate(
     # a copy: the task's (possibly cached) result object is not ours to extend
     runs = dict(
         stored(log_evaluation, layout.results)(
-            str(layout.root), profile, reference, metrics, summaries, folder_digest([CONTACTS.folder(layout.lake)]), uri
+            str(layout.root),
+            profile,
+            reference,
+            unvisited(metrics),
+            unvisited(summaries),
+            folder_digest([CONTACTS.folder(layout.lake)]),
+            uri,
         )
     )
     for path, sha, study in zip(paths, shas, studies, strict=True):
         if study["rows"]:
             runs[f"user-study-{Path(path).stem}"] = stored(log_user_study, layout.results)(
-                str(layout.root), profile, path, sha, study["rows"], uri
+                str(layout.root), profile, path, sha, unvisited(study["rows"]), uri
             )
-    publish_artefacts(profile, metrics, summaries, studies, runs)
+    publish_artefacts(profile, unvisited(metrics), unvisited(summaries), unvisited(studies), runs)
     pooled, _ = pool_seeds(
         pd.DataFrame(metrics, columns=SCHEMAS["contact_metrics"].names),
         pd.DataFrame(onsets, columns=SCHEMAS["onset_errors"].names),

@@ -12,7 +12,7 @@ from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact
 
 from tasks import tracking
-from tasks.common import ALWAYS_RUN
+from tasks.common import ALWAYS_RUN, cache_policy
 from touch2robot import catalog
 from touch2robot import lake as lake_io
 from touch2robot import report as rp
@@ -41,11 +41,12 @@ CURVES = (
 )
 
 
-def _learning_curves(layout: DataLayout) -> pd.DataFrame:
+def read_learning_curves(data: str) -> pd.DataFrame:
     """The training curves of the stages' MLflow runs (rows stage, panel, series, step, value); a stage
     that has not run has none."""
     import mlflow
 
+    layout = DataLayout.from_env(data)
     mlflow.set_tracking_uri(tracking.tracking_uri(layout))
     client = mlflow.MlflowClient()
     rows = []
@@ -70,13 +71,23 @@ def _learning_curves(layout: DataLayout) -> pd.DataFrame:
     return curves.drop(columns="seed")
 
 
-@task(**ALWAYS_RUN)
-def build_report(data: str, profile: str, seeds: list[int] | None = None) -> dict:
-    """Write the run's report from the catalog (refreshed first by the caller) and the stages' MLflow curves,
-    and publish it. Its folder is named by the digest of everything it shows: a re-run on unchanged results
-    finds the report already there and adds no MLflow run; changed results make a new one beside it."""
-    import mlflow
+@task(cache_policy=cache_policy("tasks.report", "tasks.tracking"), persist_result=True)
+def learning_curves(data: str, store: str) -> pd.DataFrame:
+    """``read_learning_curves``, keyed on the local tracking store's content (``store``,
+    tasks.tracking.store_digest): a re-run that logged nothing opens no MLflow store (importing MLflow and
+    opening its store are about 3 s of a cached smoke re-run on 2 cores)."""
+    return read_learning_curves(data)
 
+
+# a user's tracking server has no such digest: its curves are read on every run
+learning_curves_of_server = task(**ALWAYS_RUN, name="learning_curves_of_server")(read_learning_curves)
+
+
+@task(**ALWAYS_RUN)
+def build_report(data: str, profile: str, curves: pd.DataFrame, seeds: list[int] | None = None) -> dict:
+    """Write the run's report from the catalog (refreshed first by the caller) and the stages' MLflow
+    ``curves``, and publish it. Its folder is named by the digest of everything it shows: a re-run on unchanged
+    results finds the report already there and adds no MLflow run; changed results make a new one beside it."""
     layout = DataLayout.from_env(data)
     config = load_profile(profile)
     sweep = config.sweep(seeds)
@@ -85,7 +96,6 @@ def build_report(data: str, profile: str, seeds: list[int] | None = None) -> dic
         for name in ("comparison", "policy_eval", "user_study")
     }
     timelines = catalog.query(layout, TIMELINES_SQL.replace("$seed", str(int(sweep[0])))).to_pandas()
-    curves = _learning_curves(layout)
     versus = str(config.comparison.versus)
     provenance = {
         "profile": config.name,
@@ -107,7 +117,10 @@ def build_report(data: str, profile: str, seeds: list[int] | None = None) -> dic
     )
     found = rp.claims(report.comparison, rp.pooled_policy(report.policy, sweep), versus)
     markdown, page, run_file = folder / "report.md", folder / "report.html", folder / "mlflow_run_id"
-    if not (markdown.is_file() and page.is_file() and run_file.is_file()):
+    new = not (markdown.is_file() and page.is_file() and run_file.is_file())
+    if new:
+        import mlflow  # here: a report found already written needs no MLflow (about 1 s to import)
+
         report = dataclasses.replace(report, figures=rp.draw_figures(report))
         markdown, page = rp.write_report(folder, report, versus)
         tags = {"profile": config.name, "code": provenance["code"], "compared_with": versus}
@@ -123,4 +136,5 @@ def build_report(data: str, profile: str, seeds: list[int] | None = None) -> dic
         "markdown": str(markdown),
         "claims": [dataclasses.asdict(c) for c in found],
         "mlflow_run": run_file.read_text().strip(),
+        "new": new,
     }

@@ -12,13 +12,17 @@ import sqlite3
 from collections.abc import Callable, Iterator
 from contextlib import closing, contextmanager, nullcontext
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import mlflow
-from mlflow.entities import Metric
-from mlflow.exceptions import MlflowException
-
+from touch2robot.datasets import file_digest
 from touch2robot.provenance import code_version, git_commit
 from touch2robot.settings import DataLayout
+
+if TYPE_CHECKING:
+    import mlflow
+
+# MLflow is imported where it is used: importing it and opening its store take about 3 s on 2 cores, which a
+# cached re-run that logs nothing should not pay
 
 
 def local_uri(layout: DataLayout) -> str:
@@ -39,8 +43,19 @@ def tracking_uri(layout: DataLayout) -> str:
     return uri
 
 
+def store_digest(layout: DataLayout) -> str | None:
+    """The content digest of the data folder's SQLite store (with its journal, if any), or None when MLflow
+    logs to a user's server: a cache keyed on it reads the store again only after something was logged."""
+    if tracking_uri(layout) != local_uri(layout) or not layout.mlflow_db.exists():
+        return None
+    files = [layout.mlflow_db.with_name(layout.mlflow_db.name + suffix) for suffix in ("", "-wal", "-journal")]
+    return "-".join(file_digest(f) for f in files if f.exists())
+
+
 def experiment(layout: DataLayout, stage: str) -> str:
     """Point MLflow at the project's store and return the stage's experiment id."""
+    import mlflow
+
     uri = tracking_uri(layout)
     mlflow.set_tracking_uri(uri)
     if uri in _LOCAL_URIS:
@@ -115,6 +130,9 @@ GIT_COMMIT_TAG = "mlflow.source.git.commit"
 
 
 def _get_or_create(layout: DataLayout, name: str, stage: str, uri: str) -> str:
+    import mlflow
+    from mlflow.exceptions import MlflowException
+
     found = mlflow.get_experiment_by_name(name)
     if found is not None:
         return found.experiment_id
@@ -137,6 +155,8 @@ def stage_run(
 ) -> Iterator[mlflow.ActiveRun]:
     """An MLflow run in the stage's experiment; ``run_id`` continues an earlier run (a resumed
     training keeps one run and one set of curves)."""
+    import mlflow
+
     exp = experiment(layout, stage)
     if run_id is not None:
         with mlflow.start_run(run_id=run_id) as run:
@@ -162,6 +182,8 @@ def resumable_run(
 ) -> str:
     """The run id of a training kept in ``folder``: the one recorded there (a resumed training
     continues its curves in the same run), else a new run with ``params``, recorded atomically."""
+    import mlflow
+
     marker = folder / "mlflow_run.json"
     uri = tracking_uri(layout)
     if marker.is_file():
@@ -203,6 +225,8 @@ class UnloggedSteps:
 def step_logger(run_id: str, prefix: str = "") -> Callable[[int, dict[str, float]], None]:
     """``on_log(step, metrics)`` for a resumable training: logs ``prefix + name`` into ``run_id``
     (on the current tracking URI) for the steps the run does not hold yet (``UnloggedSteps``)."""
+    import mlflow
+
     unlogged = UnloggedSteps(mlflow.MlflowClient(), run_id)
 
     def log(step: int, metrics: dict[str, float]) -> None:
@@ -221,11 +245,15 @@ class RunWriter:
     limit is 1000)."""
 
     def __init__(self, run_id: str, tracking_uri: str) -> None:
+        import mlflow
+
         self.run_id = run_id
         self.client = mlflow.MlflowClient(tracking_uri)
         self._unlogged = UnloggedSteps(self.client, run_id)
 
     def log(self, step: int, metrics: dict[str, float]) -> None:
+        from mlflow.entities import Metric
+
         batch = [Metric(k, v, 0, step) for k, v in self._unlogged(step, metrics).items()]
         for i in range(0, len(batch), 1000):
             self.client.log_batch(self.run_id, metrics=batch[i : i + 1000])

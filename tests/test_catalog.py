@@ -115,3 +115,35 @@ def test_a_column_no_file_holds_yet_reads_as_null(tmp_path: Path) -> None:
         {"source": "real", "variant": None},
         {"source": "sim", "variant": ""},
     ]
+
+
+def test_a_refresh_with_unchanged_definitions_leaves_the_catalog_as_it_is(tmp_path: Path) -> None:
+    """Every flow refreshes the catalog; one whose views, comments and macros would come out the same is not
+    rewritten, and a lake that changes what a view must say (a table's first file) is."""
+    import pyarrow as pa
+
+    from schemas.tables import SCHEMAS
+
+    layout = DataLayout(tmp_path / "data")
+    catalog.refresh(layout)
+    written = layout.catalog.stat().st_mtime_ns
+    catalog.refresh(layout)
+    assert layout.catalog.stat().st_mtime_ns == written
+    assert catalog.query(layout, "SELECT count(*) AS n FROM user_study").to_pylist() == [{"n": 0}]
+
+    row = {f.name: None for f in SCHEMAS["user_study"]} | {
+        "ratings_file": "r.csv",
+        "ratings_sha256": "0" * 64,
+        "question": "Q1",
+        "n": 8,
+        "n_zero": 0,
+        "zero_method": "wilcox",
+        "method": "wilcoxon",
+        "correction": True,
+        "synthetic": True,
+    }
+    table = pa.Table.from_pylist([row], schema=SCHEMAS["user_study"])
+    lake_io.write_rows(layout.lake, "user_study", "r", table)
+    catalog.refresh(layout)
+    assert layout.catalog.stat().st_mtime_ns != written
+    assert catalog.query(layout, "SELECT question FROM user_study").to_pylist() == [{"question": "Q1"}]

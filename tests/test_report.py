@@ -138,7 +138,7 @@ def test_claims_of_a_missing_or_reversed_comparison_say_so() -> None:
     assert {c.verdict for c in claims(comparison.iloc[:0], lone, "contrack")} == {"not measured"}
 
 
-def test_the_report_is_published_as_files_an_artefact_and_an_mlflow_run(reported) -> None:
+def test_the_report_is_published_as_files_an_artefact_and_an_mlflow_run(reported, monkeypatch) -> None:
     import mlflow
 
     from tasks import tracking
@@ -161,12 +161,20 @@ def test_the_report_is_published_as_files_an_artefact_and_an_mlflow_run(reported
     assert tags["stage"] == "report" and tags["code"] == code_version() and tags["code"].startswith("git ")
     assert tags["code"].split()[1] == tags["mlflow.source.git.commit"]
     assert client.get_experiment(experiment).tags["mlflow.note.content"].startswith("The run's report")
-    # the same results again: the same report, no second MLflow run
+    # the same results again: the same report, no second MLflow run, and the curves from the cache (keyed on
+    # the store's content after the report's own run), so MLflow's store is not read
+    import tasks.report
     from flows.report import report
 
+    def unread(data: str):
+        raise AssertionError("the learning curves were read from MLflow again")
+
+    store = tracking.store_digest(DataLayout.from_env(data))
+    monkeypatch.setattr(tasks.report, "read_learning_curves", unread)
     again = report(profile="smoke", data=str(data))
-    assert (again["html"], again["mlflow_run"]) == (result["html"], result["mlflow_run"])
+    assert (again["html"], again["mlflow_run"], again["new"]) == (result["html"], result["mlflow_run"], False)
     assert len(client.search_runs([experiment])) == 1
+    assert tracking.store_digest(DataLayout.from_env(data)) == store
 
 
 def _browser():

@@ -52,6 +52,7 @@ __all__ = [
     "OnsetTrajectory",
     "align_to_reference",
     "contact_counts_long",
+    "contact_macros_sql",
     "contact_scores",
     "contact_scores_table",
     "map_to_reference_time",
@@ -411,8 +412,12 @@ def register_contact_macros(con: duckdb.DuckDBPyConnection) -> None:
     (columns as ``schemas.tables.contacts``) must exist first; the macros then follow any later
     redefinition of that view. See the SQL file for the macro names and how to call them.
     """
-    sql = resources.files("touch2robot.sql").joinpath("contact_metrics.sql").read_text()
-    con.execute(sql)
+    con.execute(contact_macros_sql())
+
+
+def contact_macros_sql() -> str:
+    """The statements of ``touch2robot/sql/contact_metrics.sql`` (see :func:`register_contact_macros`)."""
+    return resources.files("touch2robot.sql").joinpath("contact_metrics.sql").read_text()
 
 
 # --------------------------------------------------------------------------- onsets
