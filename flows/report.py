@@ -19,16 +19,14 @@ def report(profile: str = "smoke", data: str | None = None, seeds: list[int] | N
     ``seeds`` (default the profile's) the sweep it reports, a figure lacking one of them saying so."""
     layout = DataLayout.from_env(data)
     load_profile(profile).sweep(seeds)  # bad seeds fail here, before the catalog is touched
-    refresh_catalog(str(layout.root))
-    store = tracking.store_digest(layout)
-    if store is None:
-        curves = learning_curves_of_server(str(layout.root))
-    else:
-        curves = stored(learning_curves, layout.results)(str(layout.root), store)
-    written = build_report(str(layout.root), profile, unvisited(curves), seeds)
+    root, curves_cache = str(layout.root), stored(learning_curves, layout.results)
+    refresh_catalog(root)
+    store = tracking.store_digest(layout)  # None: a user's tracking server, whose curves are read every run
+    curves = learning_curves_of_server(root) if store is None else curves_cache(root, store)
+    written = build_report(root, profile, unvisited(curves), seeds)
     if store is not None and written["new"] and (logged := tracking.store_digest(layout)) is not None:
         # the report's own MLflow run changed the store: the curves (unchanged) are keyed on its new content too,
         # so that the next run on these results reads no MLflow
-        stored(learning_curves, layout.results)(str(layout.root), logged)
+        curves_cache(root, logged)
     print(f"report: {written['html']}")
     return written

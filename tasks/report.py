@@ -79,7 +79,7 @@ def learning_curves(data: str, store: str) -> pd.DataFrame:
     return read_learning_curves(data)
 
 
-# a user's tracking server has no such digest: its curves are read on every run
+# a user's tracking server has no content digest here (tasks.tracking.store_digest)
 learning_curves_of_server = task(**ALWAYS_RUN, name="learning_curves_of_server")(read_learning_curves)
 
 
