@@ -1,8 +1,9 @@
-"""Hardware-twin throughput: replays/s and env (physics) steps/s of ``replay_rollout`` (perturbed rig, sensor
-models, both MCAPs written) on scripted grasp rollouts of a few tasks, next to the raw MuJoCo ceiling measured
-in the same run: each replay's own perturbed model stepped by ``mujoco.rollout`` in one call over the same
-steps and control sequence, outputs preallocated, no sensors, no writing. Rounds interleave the two so that
-load from other processes hits both alike; the best round of each is reported.
+"""Hardware-twin throughput: replays/s and env (physics) steps/s of ``replay_rollouts`` as the replay stage runs
+it, one batch per round (perturbed rig, sensor models, both MCAPs written) on scripted grasp rollouts of a few
+tasks, next to the raw MuJoCo ceiling measured in the same run: each replay's own perturbed model stepped by
+``mujoco.rollout`` in one call over the same steps and control sequence, outputs preallocated, no sensors, no
+writing. Rounds interleave the two so that load from other processes hits both alike; the best round of each
+is reported.
 
     uv run python bench/twin.py [--tasks pick drawer] [--rollouts 3] [--steps 60] [--rounds 5]
 """
@@ -23,7 +24,7 @@ from mujoco import rollout
 from touch2robot.sim.config import SimConfig
 from touch2robot.sim.env import CONTROL_SPEC
 from touch2robot.twin.config import TwinConfig
-from touch2robot.twin.replay import replay_rollout, twin_physics
+from touch2robot.twin.replay import ReplayOutcome, ReplayRequest, replay_rollouts, twin_physics
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -41,24 +42,28 @@ def scripted(tasks: list[str], n: int, steps: int) -> list[pa.Table]:
     return out
 
 
-def run_twin(rollouts: list[pa.Table], sim: SimConfig, twin: TwinConfig, folder: Path) -> tuple[float, int, list]:
+def run_twin(
+    rollouts: list[pa.Table], sim: SimConfig, twin: TwinConfig, folder: Path
+) -> tuple[float, int, list[ReplayOutcome]]:
     """Seconds for all replays (files written), physics steps, and the outcomes."""
-    outcomes = []
-    start = time.perf_counter()
+    requests = []
     for i, rows in enumerate(rollouts):
-        task = rows["task"][0].as_py()
         metadata = {
-            "task": task,
+            "task": rows["task"][0].as_py(),
             "subject": "s00",
             "method": "touch2robot",
             "reference_recording": f"ref{i}.mcap",
             "calibration_recording": f"calib{i}.mcap",
             "rig": "hardware-twin",
         }
-        outcomes.append(
-            replay_rollout(rows, sim, twin, [0, i], folder / f"replay{i}.mcap", folder / f"calib{i}.mcap", metadata)
-        )
-    return time.perf_counter() - start, sum(o.steps for o in outcomes), outcomes
+        requests.append(ReplayRequest(rows, [0, i], folder / f"replay{i}.mcap", folder / f"calib{i}.mcap", metadata))
+    start = time.perf_counter()
+    outcomes = list(replay_rollouts(requests, sim, twin))
+    elapsed = time.perf_counter() - start
+    replayed = [o for o in outcomes if isinstance(o, ReplayOutcome)]
+    if len(replayed) < len(outcomes):
+        raise SystemExit(f"a scripted rollout failed on the twin: {next(o for o in outcomes if o not in replayed)}")
+    return elapsed, sum(o.steps for o in replayed), replayed
 
 
 def run_ceiling(rollouts: list[pa.Table], sim: SimConfig, twin: TwinConfig) -> float:
@@ -113,7 +118,7 @@ def main() -> None:
     print(f"mean share of 100 Hz samples with a fingertip region in contact: {contact:.0%}")
     print(f"files written per round: {2 * n} ({size / 1e6:.2f} MB)")
     print(f"{'':30s}{'replays/s':>12s}{'env steps/s':>14s}")
-    print(f"{'twin (replay_rollout)':30s}{n / best_twin:12.1f}{steps / best_twin:14.0f}")
+    print(f"{'twin (replay_rollouts)':30s}{n / best_twin:12.1f}{steps / best_twin:14.0f}")
     print(f"{'ceiling (mujoco.rollout)':30s}{n / best_ceiling:12.1f}{steps / best_ceiling:14.0f}")
     print(f"ratio twin / ceiling: {best_ceiling / best_twin:.2f}   (target >= 0.80)")
 

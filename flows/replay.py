@@ -15,7 +15,7 @@ from tasks.runners import ProfileTaskRunner
 from touch2robot.config import load_profile
 from touch2robot.datasets import file_digest
 from touch2robot.settings import DataLayout
-from touch2robot.twin.plan import plan_replays
+from touch2robot.twin.plan import ReplayJob, plan_replays
 
 
 @flow(name="replay", task_runner=ProfileTaskRunner(), log_prints=True)
@@ -39,13 +39,17 @@ def replay(
             update={"tasks": tuple(tasks or config.tasks), "methods": tuple(methods or config.methods)}
         )
         seed_jobs, skipped = plan_replays(layout.lake, layout.recordings, config, seed)
-        digests = {path: file_digest(path) for path in sorted({j.rollouts_file for j in seed_jobs})}
+        # one task run per rollouts file (task x method): its replays run back to back, physics overlapping writing
+        batches: dict[str, list[ReplayJob]] = {}
+        for job in seed_jobs:
+            batches.setdefault(job.rollouts_file, []).append(job)
         futures += [
-            run.submit(j, digests[j.rollouts_file], settings.teacher.sim, settings.twin, config.seed) for j in seed_jobs
+            run.submit(batch, file_digest(path), settings.teacher.sim, settings.twin, config.seed)
+            for path, batch in batches.items()
         ]
         jobs += seed_jobs
         rows += skipped_rows(skipped, seed)
-    rows = [f.result() for f in futures] + rows
+    rows = [row for f in futures for row in f.result()] + rows
     store_replays(str(layout.lake), rows)
     table = report_replays(profile, rows)
     for s in table:

@@ -11,7 +11,7 @@ from prefect import get_run_logger, task
 from prefect.artifacts import create_markdown_artifact, create_table_artifact
 
 from schemas.tables import SCHEMAS
-from tasks.common import ALWAYS_RUN, cache_policy, retry_unless_lost_physics
+from tasks.common import ALWAYS_RUN, cache_policy
 from touch2robot.datasets import EVALUATION_IDS
 from touch2robot.evaluate import replace_table
 from touch2robot.sim.config import SimConfig
@@ -33,43 +33,55 @@ REPLAYED, SKIPPED, FAILED = "replayed", "skipped", "failed"
 @task(
     cache_policy=cache_policy(*REPLAY_MODULES),
     persist_result=True,
-    retries=1,
-    retry_condition_fn=retry_unless_lost_physics,
-    task_run_name="replay-{job.task}-{job.method}-{job.demo_index}-seed{job.seed}",
+    retries=1,  # lost physics is a row, not an error: what is retried is the rest (a full disk, say)
+    task_run_name="replay-{jobs[0].task}-{jobs[0].method}-seed{jobs[0].seed}",
 )
-def replay_on_twin(job: ReplayJob, rollouts_digest: str, sim: SimConfig, twin: TwinConfig, seed: int) -> dict:
-    """Execute one trajectory open loop on the twin; write its robot replay and calibration MCAPs next to the
-    glove session it follows. ``rollouts_digest`` (the rollouts file's content) keys the cache on the
-    trajectory; ``seed`` is the sweep seed's ``replay.seed`` (the rest of that section chose the job). A replay
-    that loses physics is a ``failed`` row with the reason, not a crashed stage."""
+def replay_on_twin(
+    jobs: list[ReplayJob], rollouts_digest: str, sim: SimConfig, twin: TwinConfig, seed: int
+) -> list[dict]:
+    """Execute the trajectories of one rollouts file (one task x method x sweep seed) open loop on the twin, one
+    after another, each one's physics overlapping the writing of the one before; write each robot replay and
+    calibration MCAP next to the glove session it follows. ``rollouts_digest`` (the file's content) keys the
+    cache on the trajectories; ``seed`` is the sweep seed's ``replay.seed`` (the rest of that section chose the
+    jobs). A replay that loses physics, or whose rows are not a rollout, is a ``failed`` row with the reason;
+    the others go on."""
     import pyarrow.compute as pc
     import pyarrow.parquet as pq
 
     from touch2robot.sim.guard import LostPhysicsError
-    from touch2robot.twin.replay import RIG, replay_rollout
+    from touch2robot.twin.replay import RIG, ReplayOutcome, ReplayRequest, replay_rollouts
 
-    table = pq.read_table(job.rollouts_file)
-    rollout = table.filter(pc.field("rollout_id") == job.trajectory).sort_by("step")
-    row = _job_row(job)
-    try:
-        outcome = replay_rollout(
-            rollout,
-            sim,
-            twin,
+    table = pq.read_table(jobs[0].rollouts_file)
+    requests = (
+        ReplayRequest(
+            table.filter(pc.field("rollout_id") == job.trajectory).sort_by("step"),
             job.twin_seed(seed),
             job.replay_path,
             job.calibration_path,
             job.metadata(RIG.name),
         )
-    except LostPhysicsError as e:
-        get_run_logger().warning("replay %s of %s on %s failed: %s", job.trajectory, job.method, job.task, e)
-        return row | {"status": FAILED, "reason": f"lost physics: {e}", "replay_file": None, "calibration_file": None}
-    return row | {
-        "duration_s": outcome.duration_s,
-        "peak_force": list(outcome.peak_region_force),
-        "contact_fraction": list(outcome.contact_fraction),
-        "perturbation": json.dumps(outcome.perturbation, sort_keys=True),
-    }
+        for job in jobs
+    )
+    rows = []
+    for job, outcome in zip(jobs, replay_rollouts(requests, sim, twin), strict=True):
+        row = _job_row(job)
+        if not isinstance(outcome, ReplayOutcome):
+            what = "lost physics" if isinstance(outcome, LostPhysicsError) else "bad rollout"
+            get_run_logger().warning("replay %s of %s on %s failed: %s", job.trajectory, job.method, job.task, outcome)
+            rows.append(
+                row | {"status": FAILED, "reason": f"{what}: {outcome}", "replay_file": None, "calibration_file": None}
+            )
+            continue
+        rows.append(
+            row
+            | {
+                "duration_s": outcome.duration_s,
+                "peak_force": list(outcome.peak_region_force),
+                "contact_fraction": list(outcome.contact_fraction),
+                "perturbation": json.dumps(outcome.perturbation, sort_keys=True),
+            }
+        )
+    return rows
 
 
 def _row(task_name: str, method: str, seed: int, status: str, reason: str, **values: object) -> dict:

@@ -3,6 +3,7 @@ through the real ingest and contact extraction, and compared with the rollouts' 
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import mujoco
@@ -28,7 +29,15 @@ from touch2robot.sim.guard import LostPhysicsError
 from touch2robot.sim.scene import home_joint_targets
 from touch2robot.twin import streams
 from touch2robot.twin.config import TwinConfig
-from touch2robot.twin.replay import ReplayOutcome, _Physics, replay_rollout, twin_physics
+from touch2robot.twin.replay import (
+    ReplayOutcome,
+    ReplayRequest,
+    _Physics,
+    _PhysicsWorker,
+    replay_rollout,
+    replay_rollouts,
+    twin_physics,
+)
 
 SIM = SimConfig(threads=1)
 TASKS = ("pick", "drawer")
@@ -222,13 +231,55 @@ def test_physics_in_chunks_equals_one_rollout(rollouts):
         state, sensordata = pool.rollout(
             model, mujoco.MjData(model), prepared.initial_state[None], control[None], control_spec=CONTROL_SPEC
         )
-    physics = _Physics("pick", model, prepared.data, prepared.initial_state, control)
+    worker = _PhysicsWorker()
     try:
+        physics = _Physics("pick", model, worker.data("pick", SIM, model), prepared.initial_state, control)
+        worker.submit(physics)
         while physics.ready() < len(control):
             pass
     finally:
-        physics.close()
+        worker.close()
     assert np.array_equal(physics.states[1:], state[0]) and np.array_equal(physics.sensordata, sensordata[0])
+
+
+def test_a_batch_writes_what_each_replay_alone_writes_and_a_bad_one_stops_none(rollouts, tmp_path):
+    """``replay_rollouts`` (the replay stage's batches: one replay's physics while the one before is written)
+    writes byte for byte the files of ``replay_rollout`` one by one; rows that are no rollout and a rollout that
+    loses physics come back as their errors, in place, and the replays after them are written all the same."""
+    good = [*rollouts["pick"][:2], rollouts["drawer"][0]]
+    targets = np.array(good[0]["joint_target"].to_pylist())
+    targets[30:] = np.nan
+    lost = _with_column(good[0], "joint_target", targets)
+    batch = [good[0], good[0].slice(0, 0), good[1], lost, good[2]]
+
+    def request(k: int, rows: pa.Table, folder: Path) -> ReplayRequest:
+        task = rows["task"][0].as_py() if rows.num_rows else "pick"
+        return ReplayRequest(rows, [3, k], folder / f"replay{k}.mcap", folder / f"calib{k}.mcap", _metadata(task))
+
+    (tmp_path / "batch").mkdir()
+    requests = [request(k, rows, tmp_path / "batch") for k, rows in enumerate(batch)]
+    together = list(replay_rollouts(requests, SIM, TwinConfig()))
+    assert [type(o).__name__ for o in together] == [
+        "ReplayOutcome",
+        "ValueError",
+        "ReplayOutcome",
+        "LostPhysicsError",
+        "ReplayOutcome",
+    ]
+    assert sorted(p.name for p in (tmp_path / "batch").iterdir()) == [
+        f"{kind}{k}.mcap" for kind in ("calib", "replay") for k in (0, 2, 4)
+    ]
+    (tmp_path / "alone").mkdir()
+    for k in (0, 2, 4):
+        alone = request(k, batch[k], tmp_path / "alone")
+        outcome = replay_rollout(
+            alone.rollout, SIM, TwinConfig(), alone.seed, alone.replay_path, alone.calibration_path, alone.metadata
+        )
+        batched = together[k]
+        assert isinstance(batched, ReplayOutcome)
+        assert outcome == replace(batched, replay_path=alone.replay_path, calibration_path=alone.calibration_path)
+        for name in (f"replay{k}.mcap", f"calib{k}.mcap"):
+            assert (tmp_path / "alone" / name).read_bytes() == (tmp_path / "batch" / name).read_bytes()
 
 
 def test_lost_physics_raises_and_leaves_no_files(rollouts, tmp_path):

@@ -8,7 +8,8 @@ the drawn latency), then each command for one control period, and the last one f
 Open loop, so the whole control sequence is known up front and MuJoCo's rollout steps it in C, in
 chunks, on a worker thread; meanwhile this thread writes the calibration and then each chunk's messages
 (sensor models of ``touch2robot.twin.sensors``; timing and encoding in ``touch2robot.twin.streams``) as
-its physics arrives. Lost physics raises ``LostPhysicsError`` and leaves neither file.
+its physics arrives, and draws the next replay's rig, whose physics the worker steps next
+(``replay_rollouts``: the replay stage's batches). Lost physics leaves neither file.
 
 Clocks: physics time 0 is when command 0 is sent; the recording's streams start a few ms earlier and its
 clock sits at a fixed epoch plus an offset drawn per recording (seed and file name). A sample at recording
@@ -20,7 +21,8 @@ from __future__ import annotations
 import queue
 import threading
 import zlib
-from collections.abc import Sequence
+from collections import deque
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -189,10 +191,10 @@ def _control(model: mujoco.MjModel, cmd: _Commands, n_steps: int, substeps: int,
 
 
 class _Physics:
-    """The replay's physics on a worker thread (MuJoCo's rollout releases the GIL), chunk after chunk, the
-    solver's warm start carried across chunks (the result equals one rollout over all steps). ``states[j]``
-    is the state at physics time j x timestep (row 0: the reset state), ``sensordata[j]`` the sensors at that
-    time; ``ready()`` blocks until the next chunk is done and returns how many steps are."""
+    """One replay's physics, stepped by ``_PhysicsWorker`` chunk after chunk, the solver's warm start carried
+    across chunks (the result equals one rollout over all steps). ``states[j]`` is the state at physics time
+    j x timestep (row 0: the reset state), ``sensordata[j]`` the sensors at that time; ``ready()`` blocks until
+    the next chunk is done and returns how many steps are."""
 
     def __init__(self, task: str, model: mujoco.MjModel, data: mujoco.MjData, state: np.ndarray, control: np.ndarray):
         self.task, self.model, self.data, self.control = task, model, data, control
@@ -204,37 +206,35 @@ class _Physics:
         # the messages of the last chunk are written after all physics is done: a short one shortens that wait
         cut = max(0, n - tail)
         self.bounds = [(lo, min(lo + chunk, cut)) for lo in range(0, cut, chunk)] + [(cut, n)]
-        self._done: queue.Queue[int | BaseException] = queue.Queue()
+        self._done: queue.SimpleQueue[int | BaseException] = queue.SimpleQueue()
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name=f"twin-{task}", daemon=True)
-        self._thread.start()
 
-    def _run(self) -> None:
+    def run(self, pool: mj_rollout.Rollout) -> None:
+        """Step every chunk (on the worker's thread), handing each one's end, or the error, to ``ready``."""
         warmstart = np.zeros((1, self.model.nv))
         try:
-            with mj_rollout.Rollout(nthread=0) as pool:
-                for lo, hi in self.bounds:
-                    if self._stop.is_set():
-                        return
-                    try:
-                        # shapes and types are right by construction: the wrapper's checks cost 0.2 ms a chunk
-                        pool.rollout(
-                            [self.model],
-                            [self.data],
-                            self.states[lo : lo + 1],
-                            self.control[None, lo:hi],
-                            control_spec=CONTROL_SPEC,
-                            skip_checks=True,
-                            nstep=hi - lo,
-                            initial_warmstart=warmstart,
-                            state=self.states[None, lo + 1 : hi + 1],
-                            sensordata=self.sensordata[None, lo:hi],
-                        )
-                    except mujoco.FatalError as error:
-                        raise self._lost(lo, hi, f"MuJoCo error {str(error).splitlines()[0]!r}") from None
-                    self._check(lo, hi)
-                    warmstart = self.data.qacc_warmstart[None].copy()
-                    self._done.put(hi)
+            for lo, hi in self.bounds:
+                if self._stop.is_set():
+                    return
+                try:
+                    # shapes and types are right by construction: the wrapper's checks cost 0.2 ms a chunk
+                    pool.rollout(
+                        [self.model],
+                        [self.data],
+                        self.states[lo : lo + 1],
+                        self.control[None, lo:hi],
+                        control_spec=CONTROL_SPEC,
+                        skip_checks=True,
+                        nstep=hi - lo,
+                        initial_warmstart=warmstart,
+                        state=self.states[None, lo + 1 : hi + 1],
+                        sensordata=self.sensordata[None, lo:hi],
+                    )
+                except mujoco.FatalError as error:
+                    raise self._lost(lo, hi, f"MuJoCo error {str(error).splitlines()[0]!r}") from None
+                self._check(lo, hi)
+                warmstart = self.data.qacc_warmstart[None].copy()
+                self._done.put(hi)
         except BaseException as error:  # handed to the writing thread, which raises it
             self._done.put(error)
 
@@ -267,8 +267,41 @@ class _Physics:
             raise item
         return item
 
-    def close(self) -> None:
+    def stop(self) -> None:
+        """Skip the chunks not yet begun (a replay abandoned while its physics is queued or running)."""
         self._stop.set()
+
+
+class _PhysicsWorker:
+    """One thread that steps replays' physics back to back, in the order submitted (MuJoCo's rollout releases
+    the GIL): while it steps one replay, the calling thread writes the one before's messages and draws the
+    next one's rig, so the physics never waits for either. Its own data per scene: two replays' physics never
+    run at once on it, and the calling thread's data (``_thread_data``) is free for the next rig's draw."""
+
+    def __init__(self) -> None:
+        self._queue: queue.SimpleQueue[_Physics | None] = queue.SimpleQueue()
+        self._data: dict[tuple[str, str], mujoco.MjData] = {}
+        self._thread = threading.Thread(target=self._serve, name="twin-physics", daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        with mj_rollout.Rollout(nthread=0) as pool:
+            while (physics := self._queue.get()) is not None:
+                physics.run(pool)
+
+    def data(self, task: str, sim: SimConfig, model: mujoco.MjModel) -> mujoco.MjData:
+        """The worker's data of a scene (a new MjData zeroes a 16 MB arena: a tenth of a replay's physics)."""
+        key = (task, sim.model_dump_json())
+        if key not in self._data:
+            self._data[key] = mujoco.MjData(model)
+        return self._data[key]
+
+    def submit(self, physics: _Physics) -> None:
+        self._queue.put(physics)
+
+    def close(self) -> None:
+        """End the thread once what is queued is done (``_Physics.stop`` what is not wanted)."""
+        self._queue.put(None)
         self._thread.join()
 
 
@@ -296,7 +329,7 @@ class TwinPhysics:
     commands: _Commands
     scene: Scene  # the nominal scene the rig perturbs
     rig: TwinModel
-    data: mujoco.MjData  # this thread's scratch data of the scene (the next replay of the thread reuses it)
+    data: mujoco.MjData  # the drawing thread's scratch data of the scene (its next draw reuses it)
     initial_state: np.ndarray  # full physics state at reset
     control: np.ndarray  # (steps, ncontrol): ctrl, applied force (none), mocap pos, mocap quat
 
@@ -317,6 +350,62 @@ def _twin_physics(rollout: pa.Table, sim: SimConfig, twin: TwinConfig, rig_rng: 
     return TwinPhysics(cmd, scene, rig, data, _initial_state(scene, rig.model, data, cmd), control)
 
 
+@dataclass(frozen=True)
+class ReplayRequest:
+    """One replay asked of ``replay_rollouts``: the rows of one rollout, the seed of its rig, the two files to
+    write and the replay's metadata (task, subject, method, reference_recording, calibration_recording, rig)."""
+
+    rollout: pa.Table
+    seed: int | Sequence[int]
+    replay_path: Path
+    calibration_path: Path
+    metadata: dict[str, str]
+
+
+@dataclass(frozen=True)
+class _Started:
+    """A replay whose physics is submitted: what writing its recordings needs."""
+
+    request: ReplayRequest
+    prepared: TwinPhysics
+    physics: _Physics
+    twintac: TwinTac
+    fsr: PalmFsr
+    layout: _Layout
+    replay_t0: int  # ns
+    calibration_t0: int  # ns
+    calibration_s: float
+    stream_rng: np.random.Generator
+
+
+def replay_rollouts(
+    requests: Iterable[ReplayRequest], sim: SimConfig, twin: TwinConfig
+) -> Iterator[ReplayOutcome | ValueError | LostPhysicsError]:
+    """Execute each request's rollout on a twin drawn from ``twin`` with its seed, and write its ``robot_replay``
+    MCAP and its unloaded ``robot_calibration`` MCAP (same TwinTac set): both appear whole, the calibration
+    first, or neither does. Yields, in the requests' order, what each replay measured, or the ValueError of
+    rows that are not one rollout of a known task, or the LostPhysicsError of lost physics (the next replays
+    go on). One replay's physics runs while the one before is written and the one after is drawn
+    (``_PhysicsWorker``); each result equals that of the replay alone."""
+    worker = _PhysicsWorker()
+    in_flight: deque[_Started | ValueError] = deque()
+    try:
+        for request in requests:
+            try:
+                in_flight.append(_start(request, sim, twin, worker))
+            except ValueError as error:
+                in_flight.append(error)
+            if len(in_flight) == 2:
+                yield _settle(in_flight.popleft(), sim)
+        while in_flight:
+            yield _settle(in_flight.popleft(), sim)
+    finally:
+        for started in in_flight:
+            if isinstance(started, _Started):
+                started.physics.stop()
+        worker.close()
+
+
 def replay_rollout(
     rollout: pa.Table,
     sim: SimConfig,
@@ -326,53 +415,86 @@ def replay_rollout(
     calibration_path: Path,
     metadata: dict[str, str],
 ) -> ReplayOutcome:
-    """Execute one rollout's commands on a twin drawn from ``twin`` with ``seed``, and write its
-    ``robot_replay`` MCAP (``metadata``: task, subject, method, reference_recording, calibration_recording,
-    rig) and its unloaded ``robot_calibration`` MCAP (same TwinTac set). Both appear whole, the calibration
-    first, or neither does.
-    Raises ValueError for rows that are not one rollout of a known task, LostPhysicsError on lost physics."""
-    rig_rng, sensor_rng, _, _ = _seeds(seed)
-    prepared = _twin_physics(rollout, sim, twin, rig_rng)
-    cmd, scene, rig, model = prepared.commands, prepared.scene, prepared.rig, prepared.rig.model
+    """``replay_rollouts`` of one request; raises its ValueError or LostPhysicsError."""
+    (result,) = replay_rollouts([ReplayRequest(rollout, seed, replay_path, calibration_path, metadata)], sim, twin)
+    if isinstance(result, Exception):
+        raise result
+    return result
+
+
+def _start(request: ReplayRequest, sim: SimConfig, twin: TwinConfig, worker: _PhysicsWorker) -> _Started:
+    """Draw a replay's rig and sensors, submit its physics and lay out its messages."""
+    rig_rng, sensor_rng, _, _ = _seeds(request.seed)
+    prepared = _twin_physics(request.rollout, sim, twin, rig_rng)
+    task, model = prepared.commands.task, prepared.rig.model
+    data = worker.data(task, sim, prepared.scene.model)
+    physics = _Physics(task, model, data, prepared.initial_state, prepared.control)
+    worker.submit(physics)
     # the hardware (rig and sensor set) is the seed's; the session is the recording's own: its clock, jitter
     # and noise differ between two replays on one rig, as recordings made one after another do (two
     # byte-identical calibrations would be one recording to the ingest)
-    _, _, stream_rng, clock_rng = _seeds([*_seed_list(seed), zlib.crc32(Path(replay_path).name.encode())])
+    name_seed = zlib.crc32(Path(request.replay_path).name.encode())
+    _, _, stream_rng, clock_rng = _seeds([*_seed_list(request.seed), name_seed])
     twintac, fsr = TwinTac.draw(twin, sensor_rng), PalmFsr.draw(twin, sensor_rng)
-    dt = model.opt.timestep
-    n_steps = len(prepared.control)
-    physics = _Physics(cmd.task, model, prepared.data, prepared.initial_state, prepared.control)
+    replay_t0 = clock.EPOCH_NS + round(clock_rng.uniform(0, CLOCK_SPAN_S) * 1e9)
+    calibration_t0 = replay_t0 - round((twin.calibration_s + clock_rng.uniform(*CALIBRATION_GAP_S)) * 1e9)
+    layout = _Layout.plan(sim, len(prepared.control), model.opt.timestep, stream_rng)
+    return _Started(
+        request, prepared, physics, twintac, fsr, layout, replay_t0, calibration_t0, twin.calibration_s, stream_rng
+    )
+
+
+def _settle(started: _Started | ValueError, sim: SimConfig) -> ReplayOutcome | ValueError | LostPhysicsError:
+    if isinstance(started, ValueError):
+        return started
     try:
-        replay_t0 = clock.EPOCH_NS + round(clock_rng.uniform(0, CLOCK_SPAN_S) * 1e9)
-        calibration_s = twin.calibration_s
-        calibration_t0 = replay_t0 - round((calibration_s + clock_rng.uniform(*CALIBRATION_GAP_S)) * 1e9)
-        layout = _Layout.plan(sim, n_steps, dt, stream_rng)
-        # the calibration is written and closed while the physics runs, and removed again if the replay
-        # fails: a replay appears only after its calibration, and neither stays without the other
-        calibration_metadata = {"rig": metadata.get("rig", ""), "sensor": "twintac"}
-        with RecordingWriter(calibration_path, RecordingKind.ROBOT_CALIBRATION, calibration_metadata) as calibration:
-            _write_calibration(calibration, twintac, calibration_t0, calibration_s, stream_rng)
-        try:
-            # chunks of a few physics pieces are compressed while the physics runs (one 1 MiB chunk per replay
-            # was compressed after it: bench/twin.py 0.63 -> 0.70)
-            with RecordingWriter(replay_path, RecordingKind.ROBOT_REPLAY, metadata, chunk_size=1 << 15) as replay:
-                region_force = _write_replay(
-                    replay, physics, layout, cmd, rig, twintac, fsr, scene, replay_t0, stream_rng
-                )
-        except BaseException:
-            Path(calibration_path).unlink(missing_ok=True)
-            raise
+        return _write(started, sim)
+    except LostPhysicsError as error:
+        return error
     finally:
-        physics.close()
+        started.physics.stop()  # a no-op once its physics is done; else the worker goes on to the next
+
+
+def _write(started: _Started, sim: SimConfig) -> ReplayOutcome:
+    """Write a started replay's calibration, then its replay as its physics arrives."""
+    request, prepared, rng = started.request, started.prepared, started.stream_rng
+    rig, model = prepared.rig, prepared.rig.model
+    # the calibration is written and closed while the physics runs, and removed again if the replay fails: a
+    # replay appears only after its calibration, and neither stays without the other
+    calibration_metadata = {"rig": request.metadata.get("rig", ""), "sensor": "twintac"}
+    with RecordingWriter(request.calibration_path, RecordingKind.ROBOT_CALIBRATION, calibration_metadata) as writer:
+        _write_calibration(writer, started.twintac, started.calibration_t0, started.calibration_s, rng)
+    try:
+        # chunks of a few physics pieces are compressed while the physics runs (one 1 MiB chunk per replay was
+        # compressed after it: bench/twin.py 0.63 -> 0.70)
+        with RecordingWriter(
+            request.replay_path, RecordingKind.ROBOT_REPLAY, request.metadata, chunk_size=1 << 15
+        ) as w:
+            region_force = _write_replay(
+                w,
+                started.physics,
+                started.layout,
+                prepared.commands,
+                rig,
+                started.twintac,
+                started.fsr,
+                prepared.scene,
+                started.replay_t0,
+                rng,
+            )
+    except BaseException:
+        Path(request.calibration_path).unlink(missing_ok=True)
+        raise
+    n_steps = len(prepared.control)
     contact = region_force > sim.contact_threshold_n
     return ReplayOutcome(
-        replay_path=Path(replay_path),
-        calibration_path=Path(calibration_path),
+        replay_path=Path(request.replay_path),
+        calibration_path=Path(request.calibration_path),
         steps=n_steps,
-        duration_s=n_steps * dt,
+        duration_s=n_steps * model.opt.timestep,
         peak_region_force=tuple(float(v) for v in region_force.max(axis=0)),
         contact_fraction=tuple(float(v) for v in contact.mean(axis=0)),
-        perturbation={**rig.perturbation, **sensor_summary(twintac, fsr)},
+        perturbation={**rig.perturbation, **sensor_summary(started.twintac, started.fsr)},
     )
 
 
