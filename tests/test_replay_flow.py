@@ -126,3 +126,35 @@ def test_replays_of_a_session_from_another_folder_are_written_and_ingested_there
     (path,) = _sql(layout, "SELECT path FROM recordings WHERE kind = 'robot_replay'")[0]
     assert Path(path).parent == elsewhere.resolve()
     assert _sql(layout, "SELECT count(*) FROM contacts WHERE source = 'real'")[0][0] > 0
+
+
+def test_a_replay_that_loses_physics_is_a_failed_row_and_the_stage_goes_on(demo_lake: Path, tmp_path: Path) -> None:
+    """Commands that turn NaN from the third step lose the twin's physics: that replay is a ``failed`` row with
+    the reason (table and result), leaves no files, and the other methods' replays of the task are written."""
+    import numpy as np
+    import pyarrow as pa
+
+    from flows.replay import replay
+
+    root = tmp_path / "data"
+    shutil.copytree(demo_lake, root)
+    layout = DataLayout(root)
+    pick = next(g for g in datasets.glove_sessions(layout.lake) if g["task"] == "pick")
+    for method in ("contrack", "dexmachina"):
+        rows = rollouts_following("pick", method, "teacher", pick["recording_id"])
+        if method == "contrack":
+            targets = np.array(rows["joint_target"].to_pylist())
+            targets[2:] = np.nan
+            column = rows.schema.get_field_index("joint_target")
+            rows = rows.set_column(
+                column, rows.schema.field(column), pa.array(targets.tolist(), rows["joint_target"].type)
+            )
+        datasets.ROLLOUTS.write(layout.lake, datasets.rollouts_key("teacher", "pick", 0), rows, method=method)
+    result = replay(profile="smoke", data=str(root), tasks=["pick"], methods=["contrack", "dexmachina"])
+    assert (result["replayed"], result["failed"]) == (1, 1)
+    (status, reason, replay_file) = _sql(
+        layout, "SELECT status, reason, replay_file FROM replays WHERE method = 'contrack'"
+    )[0]
+    assert status == "failed" and reason.startswith("lost physics: pick: env 0 at t = ") and replay_file is None
+    assert not list(layout.recordings.glob("*_contrack_*.mcap"))
+    assert (layout.recordings / "pick_s01_d01_dexmachina_seed0_replay.mcap").is_file()
