@@ -5,6 +5,8 @@ DuckDB in-process."""
 
 from __future__ import annotations
 
+import atexit
+import contextlib
 import os
 import sys
 import time
@@ -24,6 +26,27 @@ from app.sql_view import SqlCommand
 if TYPE_CHECKING:
     from touch2robot.config import Profile
     from touch2robot.settings import DataLayout
+
+_exit_status: list[int] = []  # the console script's exit status, once ``main`` has it
+
+
+def _exit_without_teardown() -> None:
+    """Registered before any library is imported, so the last exit handler to run (after Prefect's, the API
+    server's stop, MLflow's, multiprocessing's): end the console script at once, skipping the interpreter's
+    final collections and module teardown (1.6 s of a 13 s cached smoke re-run on 2 cores). Nothing is left to
+    write by then: lake, catalog and results files are closed before their rename, logs are shut down here."""
+    if not _exit_status:
+        return  # the command ran inside another program (a test, a notebook): its exit is its own
+    import logging
+
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(_exit_status[0])
+
+
+atexit.register(_exit_without_teardown)
 
 app = typer.Typer(help=__doc__, no_args_is_help=True, pretty_exceptions_show_locals=False)
 console = Console()
@@ -939,7 +962,19 @@ def sim_check(
 
 
 def main() -> None:
-    app()
+    """The console script ``touch2robot``: the command, then ``_exit_without_teardown``."""
+    try:
+        app()
+    except SystemExit as stop:
+        code = stop.code
+        _exit_status.append(code if isinstance(code, int) else 0 if code is None else 1)
+        raise
+    except KeyboardInterrupt:
+        _exit_status.append(130)
+        raise
+    except BaseException:
+        _exit_status.append(1)
+        raise
 
 
 if __name__ == "__main__":

@@ -28,7 +28,6 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 __all__ = [
     "CONDITIONS",
@@ -195,6 +194,8 @@ def user_study(ratings: pd.DataFrame, questions: Sequence[str] = QUESTIONS) -> U
             # scipy returns NaN here too (with a warning); the test has no information.
             statistic, p = 0.0, float("nan")
         else:
+            from scipy import stats  # here, not at import: 0.7 s of every command's start
+
             res = stats.wilcoxon(vf, t2r, zero_method=ZERO_METHOD, method=METHOD, correction=CORRECTION)
             # scipy ships no stubs: its result bunch reads as an unnamed class to the checker
             statistic, p = float(res.statistic), float(res.pvalue)  # pyright: ignore[reportAttributeAccessIssue]

@@ -48,7 +48,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from schemas.tables import SCHEMAS
 from touch2robot.metrics import ALL
@@ -156,6 +155,8 @@ def paired_wilcoxon(a: np.ndarray, b: np.ndarray) -> PairedTest:
     d = d[np.isfinite(d)]
     if not np.any(d != 0):
         return PairedTest(math.nan, math.nan, int(d.size))
+    from scipy import stats  # here, not at import: 0.7 s of every command's start
+
     result = stats.wilcoxon(d, zero_method="wilcox", correction=False, alternative="two-sided", method="auto")
     return PairedTest(float(result.statistic), float(result.pvalue), int(d.size))  # pyright: ignore[reportAttributeAccessIssue]
 
