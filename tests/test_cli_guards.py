@@ -73,3 +73,21 @@ def test_a_bad_seed_list_is_refused_before_any_compute(
     assert result.exit_code == 2
     assert re.search(message, _said(result)), _said(result)
     assert not data.exists()  # nothing was made: not even the data folder
+
+
+@pytest.mark.parametrize(
+    ("args", "status", "said"), [(["--help"], 0, "Usage"), (["run", "-p", "/no/such.yaml"], 2, "/no/such.yaml")]
+)
+def test_the_console_script_keeps_its_status_and_output_when_it_skips_the_teardown(
+    tmp_path: Path, args: list[str], status: int, said: str
+) -> None:
+    """The installed ``touch2robot`` ends with ``os._exit`` after its exit handlers: its status and its piped
+    (block-buffered) output still come out whole."""
+    import subprocess
+    import sys
+
+    script = Path(sys.executable).with_name("touch2robot")
+    env = {**os.environ, "TOUCH2ROBOT_DATA": str(tmp_path / "data"), "COLUMNS": "200"}
+    out = subprocess.run([str(script), *args], env=env, capture_output=True, text=True, timeout=120, check=False)
+    assert out.returncode == status, out.stdout + out.stderr
+    assert said in " ".join((out.stdout + out.stderr).split())

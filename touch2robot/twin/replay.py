@@ -146,14 +146,20 @@ def _nominal_scene(task: str, sim: SimConfig) -> Scene:
 _scratch = threading.local()
 
 
-def _thread_data(task: str, sim: SimConfig, model: mujoco.MjModel) -> mujoco.MjData:
-    """This thread's data for a scene's models (a new MjData zeroes a 16 MB arena: it costs as much as a
-    tenth of a replay's physics). Replays run one at a time per thread, so one data per scene serves all."""
-    cache: dict[tuple[str, str], mujoco.MjData] = _scratch.__dict__.setdefault("data", {})
+def _scene_data(
+    cache: dict[tuple[str, str], mujoco.MjData], task: str, sim: SimConfig, model: mujoco.MjModel
+) -> mujoco.MjData:
+    """The data of a scene's models in ``cache`` (a new MjData zeroes a 16 MB arena: it costs as much as a
+    tenth of a replay's physics). One data per scene serves every replay its owner runs one at a time."""
     key = (task, sim.model_dump_json())
     if key not in cache:
         cache[key] = mujoco.MjData(model)
     return cache[key]
+
+
+def _thread_data(task: str, sim: SimConfig, model: mujoco.MjModel) -> mujoco.MjData:
+    """This thread's data of a scene (rigs are drawn one at a time per thread)."""
+    return _scene_data(_scratch.__dict__.setdefault("data", {}), task, sim, model)
 
 
 def _initial_state(scene: Scene, model: mujoco.MjModel, data: mujoco.MjData, cmd: _Commands) -> np.ndarray:
@@ -290,11 +296,8 @@ class _PhysicsWorker:
                 physics.run(pool)
 
     def data(self, task: str, sim: SimConfig, model: mujoco.MjModel) -> mujoco.MjData:
-        """The worker's data of a scene (a new MjData zeroes a 16 MB arena: a tenth of a replay's physics)."""
-        key = (task, sim.model_dump_json())
-        if key not in self._data:
-            self._data[key] = mujoco.MjData(model)
-        return self._data[key]
+        """The worker's data of a scene."""
+        return _scene_data(self._data, task, sim, model)
 
     def submit(self, physics: _Physics) -> None:
         self._queue.put(physics)
@@ -374,7 +377,6 @@ class _Started:
     layout: _Layout
     replay_t0: int  # ns
     calibration_t0: int  # ns
-    calibration_s: float
     stream_rng: np.random.Generator
 
 
@@ -396,9 +398,9 @@ def replay_rollouts(
             except ValueError as error:
                 in_flight.append(error)
             if len(in_flight) == 2:
-                yield _settle(in_flight.popleft(), sim)
+                yield _settle(in_flight.popleft(), sim, twin)
         while in_flight:
-            yield _settle(in_flight.popleft(), sim)
+            yield _settle(in_flight.popleft(), sim, twin)
     finally:
         for started in in_flight:
             if isinstance(started, _Started):
@@ -439,23 +441,23 @@ def _start(request: ReplayRequest, sim: SimConfig, twin: TwinConfig, worker: _Ph
     replay_t0 = clock.EPOCH_NS + round(clock_rng.uniform(0, CLOCK_SPAN_S) * 1e9)
     calibration_t0 = replay_t0 - round((twin.calibration_s + clock_rng.uniform(*CALIBRATION_GAP_S)) * 1e9)
     layout = _Layout.plan(sim, len(prepared.control), model.opt.timestep, stream_rng)
-    return _Started(
-        request, prepared, physics, twintac, fsr, layout, replay_t0, calibration_t0, twin.calibration_s, stream_rng
-    )
+    return _Started(request, prepared, physics, twintac, fsr, layout, replay_t0, calibration_t0, stream_rng)
 
 
-def _settle(started: _Started | ValueError, sim: SimConfig) -> ReplayOutcome | ValueError | LostPhysicsError:
+def _settle(
+    started: _Started | ValueError, sim: SimConfig, twin: TwinConfig
+) -> ReplayOutcome | ValueError | LostPhysicsError:
     if isinstance(started, ValueError):
         return started
     try:
-        return _write(started, sim)
+        return _write(started, sim, twin)
     except LostPhysicsError as error:
         return error
     finally:
         started.physics.stop()  # a no-op once its physics is done; else the worker goes on to the next
 
 
-def _write(started: _Started, sim: SimConfig) -> ReplayOutcome:
+def _write(started: _Started, sim: SimConfig, twin: TwinConfig) -> ReplayOutcome:
     """Write a started replay's calibration, then its replay as its physics arrives."""
     request, prepared, rng = started.request, started.prepared, started.stream_rng
     rig, model = prepared.rig, prepared.rig.model
@@ -463,7 +465,7 @@ def _write(started: _Started, sim: SimConfig) -> ReplayOutcome:
     # replay appears only after its calibration, and neither stays without the other
     calibration_metadata = {"rig": request.metadata.get("rig", ""), "sensor": "twintac"}
     with RecordingWriter(request.calibration_path, RecordingKind.ROBOT_CALIBRATION, calibration_metadata) as writer:
-        _write_calibration(writer, started.twintac, started.calibration_t0, started.calibration_s, rng)
+        _write_calibration(writer, started.twintac, started.calibration_t0, twin.calibration_s, rng)
     try:
         # chunks of a few physics pieces are compressed while the physics runs (one 1 MiB chunk per replay was
         # compressed after it: bench/twin.py 0.63 -> 0.70)
