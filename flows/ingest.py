@@ -21,6 +21,7 @@ from touch2robot import datasets
 from touch2robot.config import load_profile
 from touch2robot.ingest import link_replays, recording_digest, recording_rows
 from touch2robot.ingest.rigs import checked_rigs
+from touch2robot.ingest.scan import folder_state
 from touch2robot.settings import DataLayout
 
 
@@ -42,6 +43,7 @@ def ingest(
     lake = str(layout.lake)
     recordings = Path(folder or layout.recordings)
     rigs = checked_rigs(recordings, rig_files or [], session or {}).definitions()
+    state = folder_state(recordings)  # before the reading: a file changed during it moves the state
     scan = datasets.recording_files(recordings)
     for entry, why in scan.skipped:
         get_run_logger().warning("skipped %s: %s", entry, why)
@@ -71,4 +73,6 @@ def ingest(
     report = report_ingest(str(layout.root), profile, results, summaries)
     counts = {status.value: sum(r["status"] == status for r in results) for status in RecordingStatus}
     print(f"ingest: {counts} -> {layout.catalog}")
-    return {**counts, "skipped": len(scan.skipped), "files": len(results), "report": report}
+    # what was ingested: the folder in this state, as is (no session fields or rig files given)
+    as_found = state if not (session or rig_files) else None
+    return {**counts, "skipped": len(scan.skipped), "files": len(results), "report": report, "folder_state": as_found}

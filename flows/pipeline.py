@@ -38,7 +38,7 @@ def pipeline(
     retargeted = retarget(profile=profile, data=data)
     taught = teachers(profile=profile, data=data, seeds=seeds)
     distilled = student(profile=profile, data=data, seeds=seeds)
-    replayed = replay(profile=profile, data=data, seeds=seeds)
+    replayed = replay(profile=profile, data=data, seeds=seeds, ingested_state=ingested["folder_state"])
     evaluated = evaluate(profile=profile, data=data, seeds=seeds)
     policies = policy(profile=profile, data=data, seeds=seeds)
     reported = report(profile=profile, data=data, seeds=seeds)

@@ -10,10 +10,12 @@ from prefect import flow
 
 from flows.ingest import ingest
 from tasks.common import stored
+from tasks.ingest import refresh_catalog
 from tasks.replay import FAILED, REPLAYED, SKIPPED, replay_on_twin, report_replays, skipped_rows, store_replays
 from tasks.runners import ProfileTaskRunner
 from touch2robot.config import load_profile
 from touch2robot.datasets import file_digest
+from touch2robot.ingest.scan import folder_state
 from touch2robot.settings import DataLayout
 from touch2robot.twin.plan import ReplayJob, plan_replays
 
@@ -25,10 +27,12 @@ def replay(
     tasks: list[str] | None = None,
     methods: list[str] | None = None,
     seeds: list[int] | None = None,
+    ingested_state: str | None = None,
 ) -> dict:
     """Replay the profile's ``replay`` section (``tasks`` x ``methods``, default all) of every sweep seed
     (``seeds``, default the profile's) on the twin of its ``twin`` section, then ingest the recordings so
-    that their measured contacts reach the lake."""
+    that their measured contacts reach the lake. ``ingested_state``: the ``folder_state`` an ingest of this
+    run returned for ``<data>/recordings`` (the pipeline's); a folder still in it is not ingested again."""
     layout = DataLayout.from_env(data)
     settings = load_profile(profile)
     run = stored(replay_on_twin, layout.results)
@@ -62,7 +66,11 @@ def replay(
     # its replays were written beside it
     recordings = layout.recordings.resolve()
     elsewhere = sorted({j.folder for j in jobs if not Path(j.folder).is_relative_to(recordings)})
-    folders = ([None] if recordings.is_dir() else []) + elsewhere
+    unchanged = ingested_state is not None and folder_state(recordings) == ingested_state
+    if unchanged:  # no replay wrote a file (all were cached): ingesting again would find what the last ingest did
+        print(f"replay: {recordings} unchanged since this run's ingest, not ingested again")
+        refresh_catalog(str(layout.root))  # the replays table's view
+    folders = ([None] if recordings.is_dir() and not unchanged else []) + elsewhere
     ingested = [ingest(profile=profile, data=data, folder=folder) for folder in folders]
     return {
         REPLAYED: sum(r["status"] == REPLAYED for r in rows),

@@ -147,3 +147,28 @@ def test_a_refresh_with_unchanged_definitions_leaves_the_catalog_as_it_is(tmp_pa
     catalog.refresh(layout)
     assert layout.catalog.stat().st_mtime_ns != written
     assert catalog.query(layout, "SELECT question FROM user_study").to_pylist() == [{"question": "Q1"}]
+
+
+def test_a_catalog_rewritten_behind_a_refresh_is_refreshed_again(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A refresh remembers the definitions it read back from the catalog by the file's state; a catalog written
+    since (another command's refresh, by hand) has another state and is read, and refreshed, again."""
+    import time
+
+    import duckdb
+
+    monkeypatch.setattr(lake_io, "SETTLED_NS", 0)  # a catalog of this test is seconds old at most
+    layout = DataLayout(tmp_path / "data")
+    catalog.refresh(layout)
+    written = catalog._written_definitions(layout.catalog)
+    assert written is not None and catalog._written_definitions(layout.catalog) == written
+
+    time.sleep(0.05)  # past the timestamp tick of the refresh's write
+    with duckdb.connect(str(layout.catalog)) as con:
+        con.execute(f"CREATE OR REPLACE MACRO {catalog.DEFINITIONS_MACRO}() AS 'tampered'")
+        con.execute("DROP VIEW user_study")
+    assert catalog._written_definitions(layout.catalog) == "tampered"
+    catalog.refresh(layout)
+    assert catalog._written_definitions(layout.catalog) == written
+    assert catalog.query(layout, "SELECT count(*) AS n FROM user_study").to_pylist() == [{"n": 0}]

@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 from schemas import plausibility as plaus
 from schemas.glove import GLOVE_JOINT_NAMES
 from touch2robot.ingest import ingest_file, link_replays, recording_rows
-from touch2robot.ingest.scan import find_recordings
+from touch2robot.ingest.scan import find_recordings, folder_state
 from touch2robot.recording import cdr
 from touch2robot.recording.writer import RecordingWriter
 
@@ -121,6 +121,35 @@ def test_odd_folder_entries_are_skipped_with_a_reason_and_the_rest_found(tmp_pat
     assert set(reasons) == {"loop.mcap", "dangling.mcap", "dir.mcap", "fifo.mcap"}
     assert "dangling or looping link" in reasons["loop.mcap"] and "dangling or looping link" in reasons["dangling.mcap"]
     assert reasons["dir.mcap"].startswith("a directory") and reasons["fifo.mcap"].startswith("a FIFO")
+
+
+def test_a_folder_state_moves_with_every_change_an_ingest_could_see(tmp_path: Path) -> None:
+    """The replay stage skips its ingest when the recordings folder is in the state the run's ingest found: the
+    state must move with every file written, added, removed or renamed, inside linked folders too."""
+    import time
+
+    folder, linked = tmp_path / "recordings", tmp_path / "elsewhere"
+    folder.mkdir()
+    linked.mkdir()
+    (folder / "a.mcap").write_bytes(b"a" * 100)
+    (linked / "b.mcap").write_bytes(b"b" * 100)
+    (folder / "more").symlink_to(linked)
+    states = [folder_state(folder)]
+    assert folder_state(folder) == states[0]  # nothing changed: the same state
+
+    def changed(change) -> None:
+        time.sleep(0.02)  # past a timestamp tick
+        change()
+        states.append(folder_state(folder))
+        assert states[-1] not in states[:-1], change
+
+    changed(lambda: (folder / "a.mcap").write_bytes(b"A" * 100))  # same size, in place
+    changed(lambda: (linked / "b.mcap").write_bytes(b"B" * 100))  # behind a link
+    changed(lambda: (folder / "c.mcap").write_bytes(b"c"))
+    changed(lambda: (folder / "c.mcap").rename(folder / "d.mcap"))
+    changed(lambda: (folder / "d.mcap").unlink())
+    changed(lambda: (folder / "a.rig.yaml").write_text("rig"))
+    assert folder_state(tmp_path / "missing") != folder_state(tmp_path / "missing")  # never "unchanged"
 
 
 def test_a_missing_or_non_folder_recordings_path_is_named(tmp_path: Path) -> None:

@@ -5,6 +5,7 @@ recording it belongs to instead of calling it unchanged."""
 from __future__ import annotations
 
 import shutil
+import time
 from pathlib import Path
 
 import numpy as np
@@ -62,3 +63,30 @@ def test_a_removed_file_takes_its_digest_along(tmp_path: Path) -> None:
     assert lake_io.check(path) is None and lake_io.digest_path(path).exists()
     lake_io.remove(path)
     assert not path.exists() and not lake_io.digest_path(path).exists()
+
+
+def test_a_checked_file_is_hashed_again_only_once_it_changed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every flow checks the whole lake; a file that passed is remembered by its state (inode, size, mtime,
+    ctime) and not hashed again while that stays. A rewrite in place at the same size, as a stray
+    `COPY ... TO` may make, moves the ctime and is hashed and refused. A state of the last two seconds is never
+    remembered: a rewrite within the same timestamp tick would keep it."""
+    hashed: list[Path] = []
+    sha256 = lake_io._sha256
+    monkeypatch.setattr(lake_io, "_sha256", lambda path: hashed.append(path) or sha256(path))
+    path = lake_io.write_atomic(pa.table({"x": np.arange(1000.0)}), tmp_path / "t" / "a.parquet")
+    hashed.clear()
+    assert lake_io.check(path) is None and lake_io.check(path) is None
+    assert len(hashed) == 2  # written just now: not settled, hashed every time
+
+    monkeypatch.setattr(lake_io, "SETTLED_NS", 0)
+    hashed.clear()
+    assert lake_io.check(path) is None and lake_io.check(path) is None
+    assert len(hashed) == 1  # settled: the second check trusts the first
+
+    time.sleep(0.05)  # past the timestamp tick of the first write
+    data = bytearray(path.read_bytes())
+    data[len(data) // 3] ^= 0xFF
+    with open(path, "r+b") as f:  # in place: the same inode and size
+        f.write(bytes(data))
+    assert lake_io.check(path) == "changed since its stage wrote it"
+    assert len(hashed) == 2

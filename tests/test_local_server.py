@@ -219,3 +219,34 @@ def test_the_commands_prefect_api_waits_for_another_writer_instead_of_answering_
     assert out.returncode == 0, out.stderr[-3000:]
     assert "prefect: OperationalError: (sqlite3.OperationalError) database is locked" in out.stdout
     assert "patched: committed" in out.stdout
+
+
+def test_the_commands_api_clients_share_one_tls_context_and_other_users_of_ssl_do_not() -> None:
+    """Each Prefect API client built its own TLS context from certifi's bundle (45 ms a client, a client per
+    subflow); against the command's plain-http API they share one. In a subprocess: the change is Prefect's."""
+    script = """
+        import ssl
+        import prefect.client.orchestration as orchestration
+        from app.cli import _one_tls_context_for_api_clients
+
+        def context(client):
+            return client._client._transport._pool._ssl_context
+
+        url = "http://127.0.0.1:1/api"
+        assert context(orchestration.SyncPrefectClient(url)) is not context(orchestration.SyncPrefectClient(url))
+        _one_tls_context_for_api_clients()
+        _one_tls_context_for_api_clients()  # twice: still one layer
+        shared = context(orchestration.SyncPrefectClient(url))
+        assert context(orchestration.SyncPrefectClient(url)) is shared
+        assert context(orchestration.PrefectClient(url)) is shared
+        assert ssl.create_default_context() is not ssl.create_default_context()
+        print("ok")
+    """
+    done = subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(script)],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=Path(__file__).resolve().parents[1],
+    )
+    assert done.returncode == 0 and done.stdout.strip().endswith("ok"), done.stderr[-3000:]

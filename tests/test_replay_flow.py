@@ -88,6 +88,21 @@ def test_a_rerun_is_served_from_the_cache(replayed: tuple[DataLayout, dict]) -> 
     assert again["by_task_method"] == first["by_task_method"]
 
 
+def test_recordings_unchanged_since_the_runs_ingest_are_not_ingested_again(replayed: tuple[DataLayout, dict]) -> None:
+    """The pipeline hands the replay stage the folder state its ingest found: a replay that wrote nothing (all
+    cached) leaves the folder so, and the stage's ingest is skipped; a folder changed since is ingested."""
+    from flows.replay import replay
+    from touch2robot.ingest.scan import folder_state
+
+    layout, first = replayed
+    state = folder_state(layout.recordings)
+    again = replay(profile="smoke", data=str(layout.root), tasks=["pick", "wipe"], ingested_state=state)
+    assert again["ingest"] == [] and again["by_task_method"] == first["by_task_method"]
+    assert _sql(layout, "SELECT count(*) FROM replays WHERE status = 'replayed'") == [(3,)]
+    other = replay(profile="smoke", data=str(layout.root), tasks=["pick", "wipe"], ingested_state="0" * 64)
+    assert [r["files"] for r in other["ingest"]] == [len(list(layout.recordings.glob("*.mcap")))]
+
+
 def test_a_second_seed_adds_its_own_replays_and_leaves_the_first_seeds_cached(
     replayed: tuple[DataLayout, dict],
 ) -> None:

@@ -6,8 +6,10 @@ walk."""
 
 from __future__ import annotations
 
+import hashlib
 import os
 import stat
+import uuid
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -84,3 +86,39 @@ def find_recordings(folder: Path) -> Scan:
             else:
                 found.append(entry.absolute())
     return Scan(sorted(found), skipped)
+
+
+def folder_state(folder: Path) -> str:
+    """A digest of the state of every entry below ``folder``, walked as ``find_recordings`` walks it (links
+    followed): each entry's path, type, inode, size, mtime and ctime, a link's own and its target's. A file
+    written, added, removed or renamed there moves it, and an ingest is a function of its folder's files: two
+    equal states need one ingest. A folder that cannot be walked has a new state every time."""
+    folder = Path(folder)
+    h = hashlib.sha256()
+    unwalkable: list[OSError] = []
+    walked: set[tuple[int, int]] = set()
+    for parent, dirs, files in os.walk(folder, onerror=unwalkable.append, followlinks=True):
+        try:
+            here = os.stat(parent)
+        except OSError as e:  # gone while walked
+            unwalkable.append(e)
+            break
+        if (here.st_dev, here.st_ino) in walked:
+            dirs.clear()
+            continue
+        walked.add((here.st_dev, here.st_ino))
+        h.update(
+            repr((os.path.relpath(parent, folder), here.st_mtime_ns, here.st_ctime_ns)).encode(errors="surrogateescape")
+        )
+        dirs.sort()
+        for name in sorted(dirs + files):
+            entry = os.path.join(parent, name)
+            h.update(os.path.relpath(entry, folder).encode(errors="surrogateescape") + b"\0")
+            for follow in (False, True):
+                try:
+                    s = os.stat(entry, follow_symlinks=follow)
+                except OSError as e:
+                    h.update(f"{type(e).__name__}\0".encode())
+                    continue
+                h.update(repr((s.st_mode, s.st_dev, s.st_ino, s.st_size, s.st_mtime_ns, s.st_ctime_ns)).encode())
+    return uuid.uuid4().hex if unwalkable or not walked else h.hexdigest()
