@@ -91,13 +91,12 @@ def build_report(data: str, profile: str, curves: pd.DataFrame, seeds: list[int]
     layout = DataLayout.from_env(data)
     config = load_profile(profile)
     sweep = config.sweep(seeds)
-    stored = {
+    rows = {
         name: catalog.query(layout, f"SELECT * FROM {name}") for name in ("comparison", "policy_eval", "user_study")
     }
-    tables = {name: table.to_pandas() for name, table in stored.items()}
+    tables = {name: table.to_pandas() for name, table in rows.items()}
     timeline_rows = catalog.query(layout, TIMELINES_SQL.replace("$seed", str(int(sweep[0]))))
     timelines = timeline_rows.to_pandas()
-    tables_digest = rp.table_digest(*stored.values())
     versus = str(config.comparison.versus)
     provenance = {
         "profile": config.name,
@@ -110,9 +109,10 @@ def build_report(data: str, profile: str, curves: pd.DataFrame, seeds: list[int]
         ),
         "compared with": versus,
         "code": code_version(),
-        "data": f"{layout.root} (tables digest {tables_digest})",
+        "data": f"{layout.root} (tables digest {rp.table_digest(*rows.values())})",
     }
-    shown = rp.table_digest(*stored.values(), timeline_rows, curves, pd.DataFrame([provenance]).drop(columns="created"))
+    # the tables are in the provenance's digest
+    shown = rp.table_digest(timeline_rows, curves, pd.DataFrame([provenance]).drop(columns="created"))
     folder = layout.reports / f"{config.name}-{shown}"
     report = rp.ReportData(
         tables["comparison"], tables["policy_eval"], tables["user_study"], provenance, timelines, curves, seeds=sweep

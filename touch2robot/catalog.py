@@ -162,9 +162,9 @@ def _catalog_state(catalog: Path) -> tuple[lake_io.FileState, lake_io.FileState 
         return state, None
 
 
-# the definitions digest this process read from a catalog, with the catalog's settled state then (DuckDB writes
-# in place): every flow refreshes, and opening the file to read it back costs 60-80 ms
-_read_definitions: dict[Path, tuple[tuple[lake_io.FileState, lake_io.FileState | None], str]] = {}
+# the definitions digest this process read back from a catalog (DuckDB writes in place: only its settled state is
+# trusted); every flow refreshes, and opening the file to read it back costs 60-80 ms
+_read_definitions: lake_io.StateMemo[tuple[lake_io.FileState, lake_io.FileState | None], str] = lake_io.StateMemo()
 
 
 def _written_definitions(catalog: Path) -> str | None:
@@ -173,8 +173,8 @@ def _written_definitions(catalog: Path) -> str | None:
     state = _catalog_state(catalog)  # before the reading: a write during it is a change of state
     if state is None:
         return None
-    if (known := _read_definitions.get(catalog)) is not None and known[0] == state:
-        return known[1]
+    if (known := _read_definitions.get(catalog, state)) is not None:
+        return known
     try:
         with duckdb.connect(str(catalog), read_only=True) as con:
             if not _scalar(con, "SELECT count(*) FROM duckdb_functions() WHERE function_name = ?", [DEFINITIONS_MACRO]):
@@ -182,8 +182,7 @@ def _written_definitions(catalog: Path) -> str | None:
             digest = _scalar(con, f"SELECT {DEFINITIONS_MACRO}()")
     except duckdb.Error:
         return None
-    if lake_io.settled(state[0]) and (state[1] is None or lake_io.settled(state[1])):
-        _read_definitions[catalog] = (state, digest)
+    _read_definitions.put(catalog, state, digest, state)
     return digest
 
 

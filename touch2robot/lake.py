@@ -90,10 +90,27 @@ def settled(state: FileState) -> bool:
     return time.time_ns() - state[3] > SETTLED_NS
 
 
-# files this process hashed and found matching their digest, with their settled state then: a cached smoke run's
-# flows check its 300-file lake eight times over (50 ms each); only a file whose state or digest moved is hashed
-# again
-_verified: dict[Path, tuple[FileState, str]] = {}
+class StateMemo[K, V]:
+    """What this process derived from a file (its hash checked, its rows, a catalog's definitions), kept with the
+    key it was derived under (the file's states, its digest) and given back while that key stays: a cached run
+    checks and reads the same lake files at every flow. Only a key of settled states is kept."""
+
+    def __init__(self) -> None:
+        self._values: dict[Path, tuple[K, V]] = {}
+
+    def get(self, path: Path, key: K) -> V | None:
+        known = self._values.get(path)
+        return known[1] if known is not None and known[0] == key else None
+
+    def put(self, path: Path, key: K, value: V, states: tuple[FileState | None, ...]) -> None:
+        if all(state is None or settled(state) for state in states):
+            self._values[path] = (key, value)
+
+
+# a cached smoke run's flows check its 300-file lake eight times over (50 ms each)
+_verified: StateMemo[tuple[FileState, str], bool] = StateMemo()
+# Arrow tables are immutable: one read serves every later reader of an unchanged file
+_rows: StateMemo[tuple[FileState, str, pa.Schema], pa.Table] = StateMemo()
 
 
 def check(path: Path) -> str | None:
@@ -106,33 +123,27 @@ def check(path: Path) -> str | None:
         written = digest_path(path).read_text().strip()
     except OSError:
         return "no producer digest beside it (not written by a touch2robot stage)"
-    if _verified.get(path) == (state, written):
+    if _verified.get(path, (state, written)):
         return None
     if _sha256(path) != written:
         return "changed since its stage wrote it"
-    if settled(state):
-        _verified[path] = (state, written)
+    _verified.put(path, (state, written), True, (state,))
     return None
 
 
-def read_verified(path: Path, schema: pa.Schema) -> pa.Table:
+def read_rows(path: Path, schema: pa.Schema) -> pa.Table:
     """A lake file's rows (as ``schema``), read again only when its state or producer digest moved since this
-    process last read it; a file without a digest is read every time."""
+    process last read it (a file without a digest is read every time). It checks no digest: ``check`` does."""
     try:
-        key = (file_state(path), digest_path(path).read_text().strip())
+        state = file_state(path)
+        key = (state, digest_path(path).read_text().strip(), schema)
     except OSError:
         return pq.read_table(path, schema=schema)
-    cached = _read.get(path)
-    if cached is not None and cached[0] == key and cached[1].schema.equals(schema):
-        return cached[1]
+    if (table := _rows.get(path, key)) is not None:
+        return table
     table = pq.read_table(path, schema=schema)
-    if settled(key[0]):
-        _read[path] = (key, table)
+    _rows.put(path, key, table, (state,))
     return table
-
-
-# Arrow tables are immutable: one read serves every later reader of an unchanged file
-_read: dict[Path, tuple[tuple[FileState, str], pa.Table]] = {}
 
 
 def check_all(lake: Path) -> None:

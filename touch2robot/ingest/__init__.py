@@ -143,7 +143,7 @@ def recording_rows(lake: Path) -> pa.Table:
     paths = lake_io.files(lake, "recordings")
     if not paths:
         return recordings.empty_table()
-    return pa.concat_tables([lake_io.read_verified(p, recordings) for p in paths])
+    return pa.concat_tables([lake_io.read_rows(p, recordings) for p in paths])
 
 
 def superseded_ids(lake: Path, current: dict[str, str]) -> list[str]:

@@ -10,6 +10,7 @@ import hashlib
 import os
 import stat
 import uuid
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,6 +42,19 @@ def _kind(mode: int) -> str:
     return next((name for test, name in _NOT_REGULAR if test(mode)), "not a regular file")
 
 
+def _walk_once(folder: Path, on_error: Callable[[OSError], None]) -> Iterator[tuple[str, os.stat_result, list, list]]:
+    """``os.walk`` with links followed, each folder once (a folder reached twice, as by a link loop, is not walked
+    again): (folder, its stat, its sub-folders, its files); emptying the sub-folders prunes them."""
+    walked: set[tuple[int, int]] = set()
+    for parent, dirs, files in os.walk(folder, onerror=on_error, followlinks=True):
+        here = os.stat(parent)
+        if (here.st_dev, here.st_ino) in walked:
+            dirs.clear()
+            continue
+        walked.add((here.st_dev, here.st_ino))
+        yield parent, here, dirs, files
+
+
 def find_recordings(folder: Path) -> Scan:
     """The ``*.mcap`` recordings and rosbag2 folders below ``folder``, links followed (a folder reached twice,
     as by a link loop, is walked once). Raises FileNotFoundError/NotADirectoryError naming ``folder`` itself."""
@@ -54,13 +68,7 @@ def find_recordings(folder: Path) -> Scan:
     def on_error(e: OSError) -> None:
         skipped.append((Path(e.filename or folder), f"cannot list: {e.strerror}"))
 
-    walked: set[tuple[int, int]] = set()
-    for parent, dirs, files in os.walk(folder, onerror=on_error, followlinks=True):
-        here = os.stat(parent)
-        if (here.st_dev, here.st_ino) in walked:
-            dirs.clear()
-            continue
-        walked.add((here.st_dev, here.st_ino))
+    for parent, _, dirs, files in _walk_once(folder, on_error):
         if is_bag(Path(parent)):  # the folder itself may be one
             if os.access(parent, os.R_OK | os.X_OK):
                 found.append(Path(parent).absolute())
@@ -96,29 +104,23 @@ def folder_state(folder: Path) -> str:
     folder = Path(folder)
     h = hashlib.sha256()
     unwalkable: list[OSError] = []
-    walked: set[tuple[int, int]] = set()
-    for parent, dirs, files in os.walk(folder, onerror=unwalkable.append, followlinks=True):
-        try:
-            here = os.stat(parent)
-        except OSError as e:  # gone while walked
-            unwalkable.append(e)
-            break
-        if (here.st_dev, here.st_ino) in walked:
-            dirs.clear()
-            continue
-        walked.add((here.st_dev, here.st_ino))
-        h.update(
-            repr((os.path.relpath(parent, folder), here.st_mtime_ns, here.st_ctime_ns)).encode(errors="surrogateescape")
-        )
-        dirs.sort()
-        for name in sorted(dirs + files):
-            entry = os.path.join(parent, name)
-            h.update(os.path.relpath(entry, folder).encode(errors="surrogateescape") + b"\0")
-            for follow in (False, True):
-                try:
-                    s = os.stat(entry, follow_symlinks=follow)
-                except OSError as e:
-                    h.update(f"{type(e).__name__}\0".encode())
-                    continue
-                h.update(repr((s.st_mode, s.st_dev, s.st_ino, s.st_size, s.st_mtime_ns, s.st_ctime_ns)).encode())
+    walked = False
+    try:
+        for parent, here, dirs, files in _walk_once(folder, unwalkable.append):
+            walked = True
+            where = os.path.relpath(parent, folder)
+            h.update(repr((where, here.st_mtime_ns, here.st_ctime_ns)).encode(errors="surrogateescape"))
+            dirs.sort()
+            for name in sorted(dirs + files):
+                entry = os.path.join(parent, name)
+                h.update(os.path.relpath(entry, folder).encode(errors="surrogateescape") + b"\0")
+                for follow in (False, True):
+                    try:
+                        s = os.stat(entry, follow_symlinks=follow)
+                    except OSError as e:
+                        h.update(f"{type(e).__name__}\0".encode())
+                        continue
+                    h.update(repr((s.st_mode, s.st_dev, s.st_ino, s.st_size, s.st_mtime_ns, s.st_ctime_ns)).encode())
+    except OSError as e:  # a folder gone while walked
+        unwalkable.append(e)
     return uuid.uuid4().hex if unwalkable or not walked else h.hexdigest()
