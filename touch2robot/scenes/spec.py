@@ -37,6 +37,14 @@ class ObjectSpec:
     init_pos: tuple[float, float, float]
     init_quat: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
     rgba: tuple[float, float, float, float] = (0.8, 0.3, 0.2, 1.0)
+    # A compliant object (foam): MuJoCo's solref (time constant s, damping ratio) and solimp (impedance
+    # at zero and full depth, the depth in m over which it stiffens) of its contacts with the hand.
+    # None = MuJoCo's rigid defaults.
+    solref: tuple[float, float] | None = None
+    solimp: tuple[float, float, float] | None = None
+    # The object's friction against the table where it is not MuJoCo's max of the two (the table's
+    # contacts then take the table's friction and stiffness); None = the max rule.
+    table_friction: float | None = None
 
 
 @dataclass(frozen=True)
@@ -64,5 +72,7 @@ class TaskSpec:
     wipe_path: tuple[tuple[float, float], ...] | None = None
     slide: SlideSpec | None = None
     table_half_extent: tuple[float, float] = (0.4, 0.4)
+    # MuJoCo's noslip passes after each step: they cut the soft contacts' friction creep (0 = none)
+    noslip_iterations: int = 0
     notes: str = ""
     tags: tuple[str, ...] = field(default_factory=tuple)

@@ -23,6 +23,7 @@ from touch2robot.sim.config import SimConfig
 
 TABLE_HALF_THICKNESS = 0.02
 TABLE_FRICTION = 0.6
+OBJECT_SOLMIX = 100.0  # a compliant object's weight in the solref/solimp mix of its contacts (the other's is 1)
 CAMERAS = ("cam_left", "cam_right")
 OBJECT_BODY = "object"
 # where the grasp happens relative to the palm (palm frame): in front of the finger bases, under the
@@ -132,6 +133,8 @@ def scene_xml(spec: TaskSpec, cfg: SimConfig) -> str:
     assert option is not None
     option.set("iterations", str(cfg.solver_iterations))
     option.set("ls_iterations", str(cfg.ls_iterations))
+    if spec.noslip_iterations:
+        option.set("noslip_iterations", str(spec.noslip_iterations))
     sub(sub(root, "visual"), "global", offwidth="640", offheight="480")
     sub(root, "statistic", center="0 0 0.05", extent="0.4")
     asset = section(root, "asset")
@@ -164,6 +167,8 @@ def scene_xml(spec: TaskSpec, cfg: SimConfig) -> str:
         world, "light", name="fill", pos="-0.4 0.4 1.0", dir="0.3 -0.3 -1", diffuse="0.35 0.35 0.35", castshadow="false"
     )
     hx, hy = spec.table_half_extent
+    obj = spec.object
+    table_friction = {} if obj.table_friction is None else {"priority": "1"}
     sub(
         world,
         "geom",
@@ -172,10 +177,10 @@ def scene_xml(spec: TaskSpec, cfg: SimConfig) -> str:
         size=(hx, hy, TABLE_HALF_THICKNESS),
         pos=(0, 0, -TABLE_HALF_THICKNESS),
         material="table",
-        friction=(TABLE_FRICTION, 0.005, 0.0001),
+        friction=(obj.table_friction or TABLE_FRICTION, 0.005, 0.0001),
+        **table_friction,
     )
 
-    obj = spec.object
     body = sub(world, "body", name=OBJECT_BODY, pos=obj.init_pos, quat=obj.init_quat)
     if spec.slide is None:
         sub(body, "freejoint", name="object_free")
@@ -193,6 +198,10 @@ def scene_xml(spec: TaskSpec, cfg: SimConfig) -> str:
         )
     # split the mass over the primitives by volume so that MuJoCo composes a consistent inertia
     volumes = np.array([_geom_volume(g) for g in obj.geoms])
+    # a compliant object's softness outweighs the hand's defaults in MuJoCo's mix of the two
+    compliance = {k: v for k, v in (("solref", obj.solref), ("solimp", obj.solimp)) if v is not None}
+    if compliance:
+        compliance["solmix"] = OBJECT_SOLMIX
     for g, m in zip(obj.geoms, obj.mass * volumes / volumes.sum(), strict=True):
         sub(
             body,
@@ -206,6 +215,7 @@ def scene_xml(spec: TaskSpec, cfg: SimConfig) -> str:
             rgba=obj.rgba,
             friction=(obj.friction, 0.005, 0.0001),
             condim="4",
+            **compliance,
         )
     if spec.slide is not None:
         cabinet = sub(world, "body", name="cabinet")
