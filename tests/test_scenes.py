@@ -35,6 +35,9 @@ def _settle(scene: Scene, steps: int = 100) -> mujoco.MjData:
     return data
 
 
+MUJOCO_SOLREF, MUJOCO_SOLIMP = (0.02, 1.0), (0.9, 0.95, 0.001)  # MuJoCo's defaults: a rigid contact
+
+
 def test_scene_layout_comes_from_the_spec(scene: Scene) -> None:
     model, spec = scene.model, scene.spec
     table = model.geom("table")
@@ -46,6 +49,15 @@ def test_scene_layout_comes_from_the_spec(scene: Scene) -> None:
     geoms = [g for g in range(model.ngeom) if model.geom_bodyid[g] == body.id]
     assert len(geoms) == len(spec.object.geoms)
     assert {model.geom_friction[g][0] for g in geoms} == {spec.object.friction}
+    obj = spec.object
+    for g in geoms:
+        np.testing.assert_allclose(model.geom_solref[g], obj.solref or MUJOCO_SOLREF)
+        np.testing.assert_allclose(model.geom_solimp[g][:3], obj.solimp or MUJOCO_SOLIMP)
+    # a table friction of its own wins the table's contacts; otherwise MuJoCo's max rule decides
+    assert model.geom_priority[table.id] == (obj.table_friction is not None)
+    if obj.table_friction is not None:
+        assert model.geom_friction[table.id][0] == obj.table_friction
+    assert model.opt.noslip_iterations == spec.noslip_iterations
     for cam in CAMERAS:
         assert model.camera(cam).id >= 0
     assert model.ncam == 2
