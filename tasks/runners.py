@@ -92,7 +92,9 @@ RunnerSection = Literal["runner", "training_runner"]
 def build_task_runner(config: RunnerConfig) -> TaskRunner[Any]:
     """The Prefect task runner a runner section asks for (not started)."""
     if config.kind == "threads":
-        return ThreadPoolTaskRunner(max_workers=config.max_workers)
+        # Prefect's own default is unbounded: a retarget of 24 recordings ran as 24 threads, and their
+        # MLflow logging ran out of its 15 pooled connections (QueuePool timeouts, then retries)
+        return ThreadPoolTaskRunner(max_workers=config.max_workers or os.cpu_count())
     if config.kind == "processes":
         return ProcessPoolTaskRunner(
             max_workers=config.max_workers,

@@ -126,6 +126,14 @@ def test_runner_config_defaults_and_validation() -> None:
         RunnerConfig(n_workers=0)
 
 
+def test_a_thread_pool_without_a_size_has_one_thread_per_cpu() -> None:
+    """Prefect's own default is unbounded: every task of a fan-out at once."""
+    from tasks.runners import build_task_runner
+
+    assert build_task_runner(RunnerConfig(kind="threads"))._max_workers == os.cpu_count()
+    assert build_task_runner(RunnerConfig(kind="processes"))._max_workers == os.cpu_count()
+
+
 @pytest.mark.slow
 def test_build_task_runner_per_kind(probe: dict) -> None:
     built = probe["built"]

@@ -336,3 +336,20 @@ def test_bad_rollouts_are_refused_naming_the_problem(rollouts, tmp_path):
     with pytest.raises(ValueError, match="one rollout"):
         _replay(pa.concat_tables(rollouts["pick"][:2]), TwinConfig(), 0, tmp_path)
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("task", ["wipe", "rotate"])
+def test_the_objects_friction_draw_scales_its_own_friction_on_the_table(task):
+    """Wipe's sponge has its own friction on the table (the table's geom, which wins that contact): the
+    rig's object-friction draw scales it with the sponge's; a task at MuJoCo's max rule keeps its table."""
+    from touch2robot.sim.scene import build_scene
+    from touch2robot.twin.model import perturb
+
+    sim = SimConfig(threads=1)
+    scene = build_scene(task, sim)
+    twin = TwinConfig.nominal().model_copy(update={"friction_scale": (1.5, 1.5)})
+    rig = perturb(scene, twin, sim.timestep, np.random.default_rng(0), mujoco.MjData(scene.model))
+    table = scene.model.geom("table").id
+    scale = rig.model.geom_friction[table, 0] / scene.model.geom_friction[table, 0]
+    assert rig.perturbation["object_friction_scale"] == 1.5
+    assert scale == pytest.approx(1.5 if scene.spec.object.table_friction is not None else 1.0)

@@ -26,7 +26,7 @@ class RunnerConfig(BaseModel):
 
     kind: Literal["threads", "processes", "dask"] = "threads"
     max_workers: int | None = Field(
-        default=None, ge=1, description="pool size of threads/processes; None: Prefect's default (the CPU count)"
+        default=None, ge=1, description="pool size of threads/processes; None: the CPU count"
     )
     dask_address: str | None = Field(
         default=None, description="address of an existing Dask scheduler (production); None: a LocalCluster"

@@ -68,7 +68,10 @@ def perturb(
     hand_geoms = model.body_rootid[geom_body] == hand_root
     object_geoms = geom_body == object_body
     model.geom_friction[hand_geoms, 0] *= draw("hand_friction_scale", twin.friction_scale)
-    model.geom_friction[object_geoms, 0] *= draw("object_friction_scale", twin.friction_scale)
+    object_friction = draw("object_friction_scale", twin.friction_scale)
+    model.geom_friction[object_geoms, 0] *= object_friction
+    if scene.spec.object.table_friction is not None:  # the object's own friction on the table: the table's geom
+        model.geom_friction[model.geom("table").id, 0] *= object_friction
 
     mass_scale = draw("object_mass_scale", twin.object_mass_scale)
     model.body_mass[object_body] *= mass_scale
