@@ -128,10 +128,16 @@ def test_runner_config_defaults_and_validation() -> None:
 
 def test_a_thread_pool_without_a_size_has_one_thread_per_cpu() -> None:
     """Prefect's own default is unbounded: every task of a fan-out at once."""
+    from prefect.task_runners import ProcessPoolTaskRunner, ThreadPoolTaskRunner
+
     from tasks.runners import build_task_runner
 
-    assert build_task_runner(RunnerConfig(kind="threads"))._max_workers == os.cpu_count()
-    assert build_task_runner(RunnerConfig(kind="processes"))._max_workers == os.cpu_count()
+    threads, processes = (
+        build_task_runner(RunnerConfig(kind="threads")),
+        build_task_runner(RunnerConfig(kind="processes")),
+    )
+    assert isinstance(threads, ThreadPoolTaskRunner) and isinstance(processes, ProcessPoolTaskRunner)
+    assert threads._max_workers == processes._max_workers == os.cpu_count()
 
 
 @pytest.mark.slow

@@ -199,7 +199,7 @@ def scene_xml(spec: TaskSpec, cfg: SimConfig) -> str:
     # split the mass over the primitives by volume so that MuJoCo composes a consistent inertia
     volumes = np.array([_geom_volume(g) for g in obj.geoms])
     # a compliant object's softness outweighs the hand's defaults in MuJoCo's mix of the two
-    compliance = {k: v for k, v in (("solref", obj.solref), ("solimp", obj.solimp)) if v is not None}
+    compliance: dict[str, object] = {k: v for k, v in (("solref", obj.solref), ("solimp", obj.solimp)) if v is not None}
     if compliance:
         compliance["solmix"] = OBJECT_SOLMIX
     for g, m in zip(obj.geoms, obj.mass * volumes / volumes.sum(), strict=True):
