@@ -168,7 +168,8 @@ def scene_xml(spec: TaskSpec, cfg: SimConfig) -> str:
     )
     hx, hy = spec.table_half_extent
     obj = spec.object
-    table_friction = {} if obj.table_friction is None else {"priority": "1"}
+    # an object with its own friction on the table: the table's geom wins their contact (MuJoCo's priority)
+    own_friction = obj.table_friction is not None
     sub(
         world,
         "geom",
@@ -177,8 +178,8 @@ def scene_xml(spec: TaskSpec, cfg: SimConfig) -> str:
         size=(hx, hy, TABLE_HALF_THICKNESS),
         pos=(0, 0, -TABLE_HALF_THICKNESS),
         material="table",
-        friction=(obj.table_friction or TABLE_FRICTION, 0.005, 0.0001),
-        **table_friction,
+        friction=(obj.table_friction if own_friction else TABLE_FRICTION, 0.005, 0.0001),
+        **({"priority": "1"} if own_friction else {}),
     )
 
     body = sub(world, "body", name=OBJECT_BODY, pos=obj.init_pos, quat=obj.init_quat)
